@@ -20,7 +20,7 @@ app = typer.Typer(
 
 def _register() -> None:
     # Imported for their side effect of adding commands to ``app``.
-    from posefix.commands import engine, mapmatch, server  # noqa: F401
+    from posefix.commands import demo, engine, mapmatch, server, tasks  # noqa: F401
 
 
 def main() -> None:

@@ -1,0 +1,3 @@
+"""Commands of the 'demo' area, registered on posefix.cli.app."""
+
+from posefix.cli import app  # noqa: F401
