@@ -1,0 +1,162 @@
+"""GPX 1.1 tracks (read with gpxpy after a defused XML check; written directly).
+
+Reading takes every track point of every track segment in document order (or, with no
+tracks, the route points). Times are required (UTC, to Unix seconds). Elevation missing
+-> 0 m. Orientation comes from a posefix extension on each point if present::
+
+    <extensions><pf:pose qw=".." qx=".." qy=".." qz=".." [gnss_lat gnss_lon gnss_alt]/></extensions>
+
+otherwise the heading is derived from the track (roll, pitch zero) with a warning.
+Documents with a DTD (entity expansion, external entities) are refused before gpxpy sees
+them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from posefix.core.run import PoseRun
+from posefix.io._build import build_run
+from posefix.io._timeconv import datetime_to_s, s_to_iso_utc
+from posefix.io.atomic import atomic_write
+from posefix.io.errors import RunFormatError
+
+__all__ = ["read_gpx", "write_gpx", "POSEFIX_GPX_NS"]
+
+POSEFIX_GPX_NS = "https://posefix.org/xmlns/gpx-pose/1"
+_POINT_RE = {"trkpt": re.compile(rb"<(?:[\w.-]+:)?trkpt[\s>/]"), "rtept": re.compile(rb"<(?:[\w.-]+:)?rtept[\s>/]")}
+
+
+def _check_safe_xml(path: Path, data: bytes) -> None:
+    import xml.etree.ElementTree as ET
+
+    import defusedxml
+    import defusedxml.ElementTree as DET
+
+    try:
+        DET.fromstring(data, forbid_dtd=True, forbid_entities=True, forbid_external=True)
+    except defusedxml.DefusedXmlException as exc:
+        raise RunFormatError(path, None, "DOCTYPE", f"refused: XML with a DTD or entities is not accepted ({type(exc).__name__})") from None
+    except ET.ParseError as exc:
+        line = exc.position[0] if getattr(exc, "position", None) else None
+        raise RunFormatError(path, line, None, f"not well-formed XML: {exc}") from None
+
+
+def _point_lines(data: bytes, kind: str) -> np.ndarray:
+    starts = [m.start() for m in _POINT_RE[kind].finditer(data)]
+    if not starts:
+        return np.zeros(0, dtype=int)
+    nl = np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10)
+    return np.searchsorted(nl, np.asarray(starts)) + 1
+
+
+def _pose_extension(point) -> dict[str, str] | None:
+    for ext in getattr(point, "extensions", None) or []:
+        if ext.tag.split("}")[-1] == "pose" and "qw" in ext.attrib:
+            return dict(ext.attrib)
+    return None
+
+
+def read_gpx(path: str | os.PathLike) -> PoseRun:
+    """Read a GPX 1.1 file's track (or route) points into a ``PoseRun``."""
+    import gpxpy
+    import gpxpy.gpx
+
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise RunFormatError(path, None, None, f"cannot read file: {exc.strerror or exc}") from None
+    _check_safe_xml(path, data)
+    try:
+        doc = gpxpy.parse(data.decode("utf-8-sig"))
+    except (gpxpy.gpx.GPXException, UnicodeDecodeError, ValueError) as exc:
+        raise RunFormatError(path, None, None, f"not a valid GPX document: {exc}") from None
+    points = [p for trk in doc.tracks for seg in trk.segments for p in seg.points]
+    kind = "trkpt"
+    if not points:
+        points = [p for rte in doc.routes for p in rte.points]
+        kind = "rtept"
+    if not points:
+        raise RunFormatError(path, None, "trkpt", "the run is empty: no track or route points")
+    lines = _point_lines(data, kind)
+
+    def line_of_row(i: int) -> int | None:
+        return int(lines[i]) if i < len(lines) else None
+
+    n = len(points)
+    t = np.empty(n)
+    lat = np.empty(n)
+    lon = np.empty(n)
+    alt = np.zeros(n)
+    exts = [_pose_extension(p) for p in points]
+    has_q = all(e is not None for e in exts)
+    q = np.empty((n, 4)) if has_q else None
+    has_gnss = has_q and all("gnss_lat" in e for e in exts)
+    gnss = np.full((3, n), np.nan) if has_gnss else None
+    for i, p in enumerate(points):
+        if p.time is None:
+            raise RunFormatError(path, line_of_row(i), "time", "track point has no <time>")
+        t[i] = datetime_to_s(p.time)
+        lat[i], lon[i] = p.latitude, p.longitude
+        if p.elevation is not None:
+            alt[i] = p.elevation
+        if has_q:
+            e = exts[i]
+            try:
+                q[i] = [float(e[k]) for k in ("qw", "qx", "qy", "qz")]
+                if has_gnss:
+                    gnss[:, i] = [float(e[k]) if e[k] != "" else np.nan for k in ("gnss_lat", "gnss_lon", "gnss_alt")]
+            except (KeyError, ValueError) as exc:
+                raise RunFormatError(path, line_of_row(i), "pose", f"bad pose extension: {exc}") from None
+    return build_run(
+        path, t, lat, lon, alt, q, line_of_row=line_of_row,
+        field_names={"t_s": "time", "alt_m": "ele", "q_body_to_enu_wxyz": "pose"},
+        gnss=None if gnss is None else (gnss[0], gnss[1], gnss[2]),
+    )
+
+
+def _fmt(a: np.ndarray) -> list[str]:
+    return [repr(float(v)) for v in a.tolist()]
+
+
+def write_gpx(run: PoseRun, path: str | os.PathLike, name: str | None = None) -> None:
+    """Write ``run`` as one GPX 1.1 track, atomically.
+
+    Times are ``t_s`` read as Unix seconds (UTC, microseconds). The orientation (and raw
+    GNSS, if any) go in a ``pf:pose`` extension so posefix reads them back; other tools
+    ignore it. Per-sample images and extra columns are not carried by GPX.
+    """
+    from xml.sax.saxutils import escape
+
+    times = s_to_iso_utc(run.t_s)
+    lat, lon, alt = _fmt(run.lat_deg), _fmt(run.lon_deg), _fmt(run.alt_m)
+    q = run.q_body_to_enu_wxyz
+    qw, qx, qy, qz = (_fmt(q[:, k]) for k in range(4))
+    if run.has_gnss:
+        def g(a):
+            return ["" if s == "nan" else s for s in _fmt(a)]
+        glat, glon, galt = g(run.gnss_lat_deg), g(run.gnss_lon_deg), g(run.gnss_alt_m)
+        gnss_attr = [f' gnss_lat="{a}" gnss_lon="{b}" gnss_alt="{c}"' for a, b, c in zip(glat, glon, galt)]
+    else:
+        gnss_attr = [""] * run.n
+    track_name = escape(name if name is not None else Path(run.source).stem or "posefix run")
+    head = (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        '<gpx version="1.1" creator="posefix" xmlns="http://www.topografix.com/GPX/1/1" '
+        f'xmlns:pf="{POSEFIX_GPX_NS}">\n'
+        f"<trk><name>{track_name}</name><trkseg>\n"
+    )
+    body = "".join(
+        f'<trkpt lat="{la}" lon="{lo}"><ele>{e}</ele><time>{tm}</time>'
+        f'<extensions><pf:pose qw="{a}" qx="{b}" qy="{c}" qz="{d}"{ga}/></extensions></trkpt>\n'
+        for la, lo, e, tm, a, b, c, d, ga in zip(lat, lon, alt, times.tolist(), qw, qx, qy, qz, gnss_attr)
+    )
+    with atomic_write(path, "w") as fh:
+        fh.write(head)
+        fh.write(body)
+        fh.write("</trkseg></trk>\n</gpx>\n")
