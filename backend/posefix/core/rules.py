@@ -1,0 +1,226 @@
+"""Edit rules (issue section 7): which keyframes an operator may move, and which moves stand.
+
+Pure functions over plain data so the browser can port them line for line; the cases in
+``tests/vectors/edit_rules.json`` are checked by pytest here and by vitest in the browser.
+
+Positions are planar keyframe positions in metres, ``en_m`` shape (k, 2) (east, north in
+the run's local frame); the caller projects lon/lat first.  Indices are keyframe indices
+(0 .. k-1), not sample rows.
+
+Rules, applied in this order to the moves sorted by keyframe index:
+
+1. ``out_of_range``   the index names no keyframe;
+2. ``duplicate``      the same keyframe is moved twice in one batch;
+3. ``deleted``        the keyframe is deleted in this batch;
+4. ``not_adjustable`` only every ``every_n``-th keyframe (index % every_n == 0) is adjustable;
+5. ``locked``         the keyframe lies within ``lock_n`` keyframes after (``forward``) or
+                      on either side of (``both``) an earlier-edited keyframe or an accepted
+                      move of this batch with a lower index (moves are taken in index order);
+6. ``too_far``        the move is longer than ``max_move_m`` (0 = no limit);
+7. ``order_reversed`` between two consecutive moved keyframes i < j (earlier edits
+                      included) the corrected chord c_j - c_i points backwards along the
+                      reported chord p_j - p_i (dot product <= 0; chords shorter than 1 m are
+                      not judged).  ``order_rule`` "refuse" refuses the later move, "flag"
+                      accepts it with a flag.
+
+Rules 1-6 always refuse.  A refused move is left out before rule 7 is judged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+REASONS = (
+    "out_of_range",
+    "duplicate",
+    "deleted",
+    "not_adjustable",
+    "locked",
+    "too_far",
+    "order_reversed",
+)
+MIN_CHORD_M = 1.0
+
+
+@dataclass(frozen=True)
+class EditRules:
+    """Parameters of the edit rules, published to the browser as JSON."""
+
+    every_n: int = 1
+    lock_n: int = 0
+    lock_direction: str = "forward"  # "forward" | "both"
+    max_move_m: float = 0.0  # 0 = unlimited
+    order_rule: str = "flag"  # "refuse" | "flag"
+    deleted: str = "remove"  # "remove" | "flag"
+
+    def to_json(self) -> dict:
+        return {
+            "every_n": self.every_n,
+            "lock_n": self.lock_n,
+            "lock_direction": self.lock_direction,
+            "max_move_m": self.max_move_m,
+            "order_rule": self.order_rule,
+            "deleted": self.deleted,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict) -> "EditRules":
+        return cls(**{k: data[k] for k in cls().to_json() if k in data})
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """One refused (or flagged) move: keyframe index, machine reason, human message."""
+
+    index: int
+    reason: str
+    message: str
+
+    def to_json(self) -> dict:
+        return {"index": self.index, "reason": self.reason, "message": self.message}
+
+
+@dataclass(frozen=True)
+class KeyframeMove:
+    """Move keyframe ``index`` to (east_m, north_m) in the local frame."""
+
+    index: int
+    east_m: float
+    north_m: float
+
+
+@dataclass(frozen=True)
+class RuleCheck:
+    """Outcome of ``check_edits``: accepted moves, refusals and flags."""
+
+    accepted: list[KeyframeMove] = field(default_factory=list)
+    refusals: list[Refusal] = field(default_factory=list)
+    flags: list[Refusal] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.refusals
+
+
+def adjustable_mask(n_keyframes: int, rules: EditRules) -> np.ndarray:
+    """(k,) bool: keyframes an operator may move at all (index % every_n == 0)."""
+    return np.arange(n_keyframes) % max(int(rules.every_n), 1) == 0
+
+
+def lock_span(index: int, n_keyframes: int, rules: EditRules) -> range:
+    """Keyframe indices locked by an edit at ``index`` (the edited one excluded)."""
+    hi = min(index + rules.lock_n, n_keyframes - 1)
+    lo = max(index - rules.lock_n, 0) if rules.lock_direction == "both" else index + 1
+    return range(lo, hi + 1)
+
+
+def locked_mask(n_keyframes: int, edited: list[int], rules: EditRules) -> np.ndarray:
+    """(k,) bool: keyframes locked by the edited keyframes (which are never locked themselves)."""
+    locked = np.zeros(n_keyframes, dtype=bool)
+    for index in edited:
+        for j in lock_span(int(index), n_keyframes, rules):
+            locked[j] = True
+    locked[[int(i) for i in edited if 0 <= int(i) < n_keyframes]] = False
+    return locked
+
+
+def check_edits(
+    rules: EditRules,
+    reported_en_m: np.ndarray,
+    moves: list[KeyframeMove],
+    deleted: list[int] = (),
+    edited_before: dict[int, tuple[float, float]] | None = None,
+) -> RuleCheck:
+    """Apply the rules to one batch of moves.
+
+    Parameters
+    ----------
+    reported_en_m : ndarray, shape (k, 2)
+        Reported keyframe positions (east, north), metres.
+    moves : list of KeyframeMove
+        The batch, in any order.
+    deleted : list of int
+        Keyframes deleted in this batch.
+    edited_before : dict index -> (east_m, north_m), optional
+        Keyframes edited in earlier revisions and their corrected positions; they lock
+        their neighbours and take part in the order check.  Moving one of them again is
+        allowed (a re-drag replaces the earlier edit).
+    """
+    reported = np.asarray(reported_en_m, dtype=float).reshape(-1, 2)
+    k = len(reported)
+    edited_before = dict(edited_before or {})
+    deleted_set = {int(i) for i in deleted}
+    refusals: list[Refusal] = []
+    flags: list[Refusal] = []
+    seen: set[int] = set()
+    accepted: list[KeyframeMove] = []
+    lock_sources = sorted(i for i in edited_before if i not in {m.index for m in moves})
+    locked = set()
+    for i in lock_sources:
+        locked.update(lock_span(i, k, rules))
+    adjustable = adjustable_mask(k, rules)
+    for move in sorted(moves, key=lambda m: m.index):
+        i = int(move.index)
+        refusal = _first_refusal(rules, reported, move, k, seen, deleted_set, adjustable, locked)
+        seen.add(i)
+        if refusal is not None:
+            refusals.append(refusal)
+            continue
+        accepted.append(move)
+        locked.update(j for j in lock_span(i, k, rules) if j != i)
+    # rule 7 on the accepted moves together with earlier edits
+    positions = {i: xy for i, xy in edited_before.items() if i not in deleted_set}
+    positions.update({m.index: (m.east_m, m.north_m) for m in accepted})
+    batch = {m.index for m in accepted}
+    order = sorted(positions)
+    reversed_indices = set()
+    for a, b in zip(order[:-1], order[1:]):
+        chord = reported[b] - reported[a]
+        if np.hypot(*chord) < MIN_CHORD_M:
+            continue
+        moved = np.subtract(positions[b], positions[a])
+        if float(np.dot(moved, chord)) <= 0.0:
+            culprit = b if b in batch else a
+            if culprit not in batch or culprit in reversed_indices:
+                continue
+            reversed_indices.add(culprit)
+            other = a if culprit == b else b
+            item = Refusal(
+                culprit,
+                "order_reversed",
+                f"Moving keyframe {culprit} puts it on the wrong side of edited keyframe {other}: "
+                "the poses would run backwards along the track.",
+            )
+            (refusals if rules.order_rule == "refuse" else flags).append(item)
+    if rules.order_rule == "refuse":
+        accepted = [m for m in accepted if m.index not in reversed_indices]
+    return RuleCheck(accepted=accepted, refusals=refusals, flags=flags)
+
+
+def _first_refusal(rules, reported, move, k, seen, deleted_set, adjustable, locked) -> Refusal | None:
+    i = int(move.index)
+    if i < 0 or i >= k:
+        return Refusal(i, "out_of_range", f"There is no keyframe {i}; this run has {k} keyframes (0 to {k - 1}).")
+    if i in seen:
+        return Refusal(i, "duplicate", f"Keyframe {i} is moved twice in one batch; send one move per keyframe.")
+    if i in deleted_set:
+        return Refusal(i, "deleted", f"Keyframe {i} is deleted in this batch and cannot also be moved.")
+    if not adjustable[i]:
+        return Refusal(
+            i, "not_adjustable", f"Only every {rules.every_n}th keyframe can be moved; keyframe {i} is not one of them."
+        )
+    if i in locked:
+        return Refusal(
+            i, "locked", f"Keyframe {i} is locked: it lies within {rules.lock_n} keyframes of an edited keyframe."
+        )
+    if rules.max_move_m > 0:
+        distance_m = float(np.hypot(move.east_m - reported[i, 0], move.north_m - reported[i, 1]))
+        if distance_m > rules.max_move_m:
+            return Refusal(
+                i,
+                "too_far",
+                f"Keyframe {i} would move {distance_m:.1f} m; the limit is {rules.max_move_m:g} m.",
+            )
+    return None

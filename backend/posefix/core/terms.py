@@ -1,0 +1,372 @@
+"""The five terms of the correction problem (issue section 4), each beside its Jacobian.
+
+State.  Keyframe i has a position ``p_i`` (ENU metres) and an orientation
+``R_i = R~_i Exp(theta_i)``: a rotation vector ``theta_i`` (radians, body frame) that
+perturbs the reported orientation on the right.  The state vector interleaves
+``x = [p_0, theta_0, p_1, theta_1, ...]`` (6 per keyframe) so terms that link only
+neighbouring keyframes give a block-banded Jacobian (band of 12 columns).  ``theta = 0``
+is the reported orientation; corrections are small (gravity pins roll and pitch, yaw moves
+by degrees at most) so this chart never approaches its singularity at |theta| = pi.
+
+Residuals are whitened (divided by their sigma), so the cost is
+``F(x) = 1/2 sum_i rho(|e_loc,i|^2) + 1/2 sum |r_user|^2 + 1/2 sum |r_RT|^2 + 1/2 sum |r_RR|^2 + 1/2 sum |r_G|^2``
+with ``rho`` the robust loss of the location term, applied per keyframe to the whole
+whitened 3-vector (as GTSAM's robust noise model does).  To keep one plain least-squares
+problem for both solvers the location residual is rewritten exactly as
+``r = sqrt(rho(s)/s) e`` with ``s = |e|^2``, so ``|r|^2 = rho(s)``; its Jacobian is
+``dr/de = f I + 2 f'(s) e e^T`` with ``f = sqrt(rho(s)/s)``.
+
+Terms (``p~, R~`` reported, ``p, R`` corrected):
+
+* location      ``e_i = W_i (p_i - g_i)``                                  (3 per located keyframe)
+* user          ``r_k = W_k (p_k - c_k)``  (vertical weight 0 for a 2-D edit)  (3 per edit)
+* rel. transl.  ``r_ij = (R_i^T (p_j - p_i) - D_ij) / s_RT,ij``, ``D_ij = R~_i^T (p~_j - p~_i)``
+* rel. rotation ``r_ij = Log(dR~_ij^T R_i^T R_j) / s_RR,ij``, ``dR~_ij = R~_i^T R~_j``
+* gravity       ``r_i = (R_i^T z - R~_i^T z) / s_G``, ``z = [0, 0, 1]``
+
+with j = i + 1.  Jacobians, using ``Exp(theta + d) ~= Exp(theta) Exp(Jr(theta) d)``:
+
+* d(R_i^T v)/d theta_i = [R_i^T v]x Jr(theta_i)
+* d Log(E)/d theta_j = Jr^-1(phi) Jr(theta_j);  d Log(E)/d theta_i = -Jl^-1(phi) dR~^T Jr(theta_i)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from posefix.core import rotations as rot
+
+LOSSES = ("none", "huber", "soft_l1", "cauchy")
+TERM_NAMES = ("location", "user", "relative_translation", "relative_rotation", "gravity")
+
+
+@dataclass(frozen=True)
+class Terms:
+    """Data of every term on k keyframes (relative terms link i and i + 1).
+
+    p_rep_m (k,3), R_rep (k,3,3): reported poses.
+    loc_idx (m,), loc_g_m (m,3), loc_w (m,3): located keyframes, measured positions, 1/sigma per axis.
+    user_idx (u,), user_c_m (u,3), user_w (u,3): edited keyframes, targets, 1/sigma (0 = free axis).
+    rel_delta_m (k-1,3), rel_w_t (k-1,): body-frame steps D_ij and 1/s_RT.
+    rel_dR (k-1,3,3), rel_w_r (k-1,): reported relative rotations and 1/s_RR.
+    grav_zb (k,3), grav_w (k,): reported body-frame up vectors and 1/s_G.
+    """
+
+    p_rep_m: np.ndarray
+    R_rep: np.ndarray
+    loc_idx: np.ndarray
+    loc_g_m: np.ndarray
+    loc_w: np.ndarray
+    user_idx: np.ndarray
+    user_c_m: np.ndarray
+    user_w: np.ndarray
+    rel_delta_m: np.ndarray
+    rel_w_t: np.ndarray
+    rel_dR: np.ndarray
+    rel_w_r: np.ndarray
+    grav_zb: np.ndarray
+    grav_w: np.ndarray
+    loss: str = "cauchy"
+    loss_scale: float = 1.0
+
+    @property
+    def n_keyframes(self) -> int:
+        return len(self.p_rep_m)
+
+
+def build_terms(
+    p_rep_m: np.ndarray,
+    q_rep_wxyz: np.ndarray,
+    loc_idx: np.ndarray,
+    loc_g_m: np.ndarray,
+    loc_sigma_m: np.ndarray,
+    user_idx: np.ndarray,
+    user_c_m: np.ndarray,
+    user_sigma_m: np.ndarray,
+    sigma_rt_m: np.ndarray,
+    sigma_rr_rad: np.ndarray,
+    sigma_g: float | np.ndarray,
+    loss: str = "cauchy",
+    loss_scale: float = 1.0,
+) -> Terms:
+    """Terms from reported keyframe poses and sigmas (inf sigma = axis not constrained)."""
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    p_rep_m = np.asarray(p_rep_m, dtype=float)
+    R_rep = rot.quat_to_matrix(rot.normalize_quat(q_rep_wxyz))
+    k = len(p_rep_m)
+    delta = np.einsum("kji,kj->ki", R_rep[:-1], p_rep_m[1:] - p_rep_m[:-1])
+    dR = np.einsum("kji,kjl->kil", R_rep[:-1], R_rep[1:])
+    return Terms(
+        p_rep_m=p_rep_m,
+        R_rep=R_rep,
+        loc_idx=np.asarray(loc_idx, dtype=np.int64),
+        loc_g_m=np.asarray(loc_g_m, dtype=float).reshape(-1, 3),
+        loc_w=1.0 / np.asarray(loc_sigma_m, dtype=float).reshape(-1, 3),
+        user_idx=np.asarray(user_idx, dtype=np.int64),
+        user_c_m=np.asarray(user_c_m, dtype=float).reshape(-1, 3),
+        user_w=1.0 / np.asarray(user_sigma_m, dtype=float).reshape(-1, 3),
+        rel_delta_m=delta,
+        rel_w_t=1.0 / np.broadcast_to(np.asarray(sigma_rt_m, dtype=float), (k - 1,)),
+        rel_dR=dR,
+        rel_w_r=1.0 / np.broadcast_to(np.asarray(sigma_rr_rad, dtype=float), (k - 1,)),
+        grav_zb=R_rep[:, 2, :].copy(),
+        grav_w=1.0 / np.broadcast_to(np.asarray(sigma_g, dtype=float), (k,)),
+        loss=loss,
+        loss_scale=float(loss_scale),
+    )
+
+
+# ----------------------------------------------------------------------------- robust loss
+
+
+def loss_ratio(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
+    """g(z) = rho0(z)/z and g'(z) for the unit-scale losses of scipy.optimize.least_squares.
+
+    rho0: none z; huber z (z<=1) else 2 sqrt(z) - 1; soft_l1 2 (sqrt(1+z) - 1); cauchy log(1+z).
+    """
+    z = np.asarray(z, dtype=float)
+    if loss == "none":
+        return np.ones_like(z), np.zeros_like(z)
+    if loss == "huber":
+        big = z > 1.0
+        zs = np.where(big, z, 1.0)
+        sq = np.sqrt(zs)
+        return np.where(big, (2.0 * sq - 1.0) / zs, 1.0), np.where(big, (1.0 - sq) / (zs * zs), 0.0)
+    if loss == "soft_l1":
+        sq = np.sqrt(1.0 + z)
+        return 2.0 / (sq + 1.0), -1.0 / ((sq + 1.0) ** 2 * sq)
+    if loss == "cauchy":
+        small = z < 1e-4
+        zs = np.where(small, 1.0, z)
+        lg = np.log1p(zs)
+        g = np.where(small, 1.0 - z / 2.0 + z * z / 3.0, lg / zs)
+        dg = np.where(small, -0.5 + 2.0 * z / 3.0, (zs / (1.0 + zs) - lg) / (zs * zs))
+        return g, dg
+    raise ValueError(f"unknown loss {loss!r}")
+
+
+def robust_cost(s: np.ndarray, loss: str, scale: float) -> np.ndarray:
+    """rho(s) = C^2 rho0(s / C^2) for whitened squared distances s."""
+    c2 = scale * scale
+    g, _ = loss_ratio(s / c2, loss)
+    return g * s
+
+
+# ----------------------------------------------------------------------------- residuals
+
+
+@dataclass
+class Evaluation:
+    """Residuals (and Jacobian blocks) of every term at one state.
+
+    Blocks are (m, 3, 3) matrices: d residual / d p or d theta of the keyframe named.
+    """
+
+    loc_r: np.ndarray
+    user_r: np.ndarray
+    rt_r: np.ndarray
+    rr_r: np.ndarray
+    grav_r: np.ndarray
+    jac: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def costs(self) -> dict[str, float]:
+        """Cost of each term, 1/2 sum of squared (robustified) residuals."""
+        return {
+            name: 0.5 * float(np.sum(r * r))
+            for name, r in zip(TERM_NAMES, (self.loc_r, self.user_r, self.rt_r, self.rr_r, self.grav_r))
+        }
+
+    def cost(self) -> float:
+        return float(sum(self.costs().values()))
+
+    def residual_vector(self) -> np.ndarray:
+        return np.concatenate([r.ravel() for r in (self.loc_r, self.user_r, self.rt_r, self.rr_r, self.grav_r)])
+
+
+def split_state(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """State (6k,) -> positions (k,3) metres and rotation vectors (k,3) radians."""
+    x = np.asarray(x, dtype=float).reshape(-1, 6)
+    return x[:, :3], x[:, 3:]
+
+
+def initial_state(terms: Terms) -> np.ndarray:
+    """The reported poses: p = p~, theta = 0."""
+    x = np.zeros((terms.n_keyframes, 6))
+    x[:, :3] = terms.p_rep_m
+    return x.ravel()
+
+
+def residual_location(terms: Terms, p_m: np.ndarray, with_jac: bool):
+    """Robustified location residual r = sqrt(rho(s)/s) e, e = W (p - g); returns r, dr/dp."""
+    e = terms.loc_w * (p_m[terms.loc_idx] - terms.loc_g_m)
+    s = np.einsum("mi,mi->m", e, e)
+    c2 = terms.loss_scale**2
+    g, dg = loss_ratio(s / c2, terms.loss)
+    f = np.sqrt(g)
+    r = f[:, None] * e
+    if not with_jac:
+        return r, None
+    # f'(s) = g'(z) / (2 f C^2); dr/de = f I + 2 f'(s) e e^T; dr/dp = dr/de diag(W)
+    df = dg / (2.0 * f * c2)
+    dr_de = f[:, None, None] * np.eye(3) + (2.0 * df)[:, None, None] * np.einsum("mi,mj->mij", e, e)
+    return r, dr_de * terms.loc_w[:, None, :]
+
+
+def residual_user(terms: Terms, p_m: np.ndarray, with_jac: bool):
+    """r = W (p_k - c_k); dr/dp = diag(W)."""
+    r = terms.user_w * (p_m[terms.user_idx] - terms.user_c_m)
+    if not with_jac:
+        return r, None
+    J = np.zeros((len(r), 3, 3))
+    J[:, [0, 1, 2], [0, 1, 2]] = terms.user_w
+    return r, J
+
+
+def residual_relative_translation(terms: Terms, p_m: np.ndarray, R: np.ndarray, Jr: np.ndarray | None):
+    """r = w (R_i^T (p_j - p_i) - D_ij); blocks d/dp_i, d/dp_j, d/dtheta_i."""
+    w = terms.rel_w_t[:, None]
+    b = np.einsum("kji,kj->ki", R[:-1], p_m[1:] - p_m[:-1])
+    r = w * (b - terms.rel_delta_m)
+    if Jr is None:
+        return r, None
+    RiT = np.swapaxes(R[:-1], 1, 2) * w[:, :, None]
+    J_theta = rot.skew(b) @ Jr[:-1] * w[:, :, None]
+    return r, (-RiT, RiT, J_theta)
+
+
+def residual_relative_rotation(terms: Terms, theta: np.ndarray, q_corr: np.ndarray, Jr: np.ndarray | None):
+    """r = w Log(dR~^T Exp(-theta_i) dR~ Exp(theta_j)); blocks d/dtheta_i, d/dtheta_j."""
+    w = terms.rel_w_r[:, None]
+    C = rot.quat_to_matrix(q_corr)  # Exp(theta)
+    dRt = np.swapaxes(terms.rel_dR, 1, 2)
+    E = dRt @ np.swapaxes(C[:-1], 1, 2) @ terms.rel_dR @ C[1:]
+    phi = rot.log_matrix(E)
+    r = w * phi
+    if Jr is None:
+        return r, None
+    J_i = -(rot.left_jacobian_inverse(phi) @ dRt @ Jr[:-1]) * w[:, :, None]
+    J_j = (rot.right_jacobian_inverse(phi) @ Jr[1:]) * w[:, :, None]
+    return r, (J_i, J_j)
+
+
+def residual_gravity(terms: Terms, R: np.ndarray, Jr: np.ndarray | None):
+    """r = w (R_i^T z - R~_i^T z); block d/dtheta_i = w [R_i^T z]x Jr(theta_i)."""
+    w = terms.grav_w[:, None]
+    zb = R[:, 2, :]
+    r = w * (zb - terms.grav_zb)
+    if Jr is None:
+        return r, None
+    return r, rot.skew(zb) @ Jr * w[:, :, None]
+
+
+def evaluate(terms: Terms, x: np.ndarray, with_jac: bool = True) -> Evaluation:
+    """All residuals at state x (6k,), with Jacobian blocks when ``with_jac``."""
+    p_m, theta = split_state(x)
+    q_corr = rot.exp_quat(theta)
+    R = terms.R_rep @ rot.quat_to_matrix(q_corr)
+    Jr = rot.right_jacobian(theta) if with_jac else None
+    loc_r, loc_J = residual_location(terms, p_m, with_jac)
+    user_r, user_J = residual_user(terms, p_m, with_jac)
+    rt_r, rt_J = residual_relative_translation(terms, p_m, R, Jr)
+    rr_r, rr_J = residual_relative_rotation(terms, theta, q_corr, Jr)
+    g_r, g_J = residual_gravity(terms, R, Jr)
+    ev = Evaluation(loc_r, user_r, rt_r, rr_r, g_r)
+    if with_jac:
+        ev.jac = {
+            "loc_p": loc_J,
+            "user_p": user_J,
+            "rt_pi": rt_J[0],
+            "rt_pj": rt_J[1],
+            "rt_ti": rt_J[2],
+            "rr_ti": rr_J[0],
+            "rr_tj": rr_J[1],
+            "g_t": g_J,
+        }
+    return ev
+
+
+def cost(terms: Terms, x: np.ndarray) -> float:
+    """F(x), the total cost."""
+    return evaluate(terms, x, with_jac=False).cost()
+
+
+# ----------------------------------------------------------------------------- assembly
+
+
+def _block_entries(res_offset: int, n_res: int, var_block: np.ndarray, var_offset: int, J: np.ndarray):
+    """COO rows/cols/values of (n_res, 3, 3) blocks placed at residual rows and variable columns."""
+    m = len(J)
+    rows = res_offset + np.arange(m)[:, None, None] * 3 + np.arange(3)[None, :, None]
+    cols = var_block[:, None, None] * 6 + var_offset + np.arange(3)[None, None, :]
+    rows = np.broadcast_to(rows, (m, 3, 3))
+    cols = np.broadcast_to(cols, (m, 3, 3))
+    return rows.ravel(), cols.ravel(), J.ravel()
+
+
+def sparse_jacobian(terms: Terms, ev: Evaluation):
+    """The full Jacobian as a scipy CSR matrix, shape (n_residuals, 6k)."""
+    from scipy.sparse import csr_matrix
+
+    k = terms.n_keyframes
+    ar = np.arange(k)
+    sizes = [ev.loc_r.size, ev.user_r.size, ev.rt_r.size, ev.rr_r.size, ev.grav_r.size]
+    off = np.concatenate([[0], np.cumsum(sizes)])
+    parts = [
+        _block_entries(off[0], sizes[0], terms.loc_idx, 0, ev.jac["loc_p"]),
+        _block_entries(off[1], sizes[1], terms.user_idx, 0, ev.jac["user_p"]),
+        _block_entries(off[2], sizes[2], ar[:-1], 0, ev.jac["rt_pi"]),
+        _block_entries(off[2], sizes[2], ar[1:], 0, ev.jac["rt_pj"]),
+        _block_entries(off[2], sizes[2], ar[:-1], 3, ev.jac["rt_ti"]),
+        _block_entries(off[3], sizes[3], ar[:-1], 3, ev.jac["rr_ti"]),
+        _block_entries(off[3], sizes[3], ar[1:], 3, ev.jac["rr_tj"]),
+        _block_entries(off[4], sizes[4], ar, 3, ev.jac["g_t"]),
+    ]
+    rows = np.concatenate([p[0] for p in parts])
+    cols = np.concatenate([p[1] for p in parts])
+    vals = np.concatenate([p[2] for p in parts])
+    return csr_matrix((vals, (rows, cols)), shape=(int(off[-1]), 6 * k))
+
+
+def normal_equations(terms: Terms, ev: Evaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """J^T J as diagonal blocks D (k,6,6) and upper off-diagonal blocks U (k-1,6,6), and J^T r (6k,).
+
+    U[i] couples keyframe i (rows) with keyframe i + 1 (columns).
+    """
+    k = terms.n_keyframes
+    D = np.zeros((k, 6, 6))
+    U = np.zeros((max(k - 1, 0), 6, 6))
+    g = np.zeros((k, 6))
+    jac = ev.jac
+
+    def ata(A, B):
+        return np.einsum("mri,mrj->mij", A, B)
+
+    # location and user: position blocks only
+    # (each keyframe has at most one location and one user term, so fancy-index adds are safe)
+    D[terms.loc_idx, :3, :3] += ata(jac["loc_p"], jac["loc_p"])
+    g[terms.loc_idx, :3] += np.einsum("mri,mr->mi", jac["loc_p"], ev.loc_r)
+    D[terms.user_idx, :3, :3] += ata(jac["user_p"], jac["user_p"])
+    g[terms.user_idx, :3] += np.einsum("mri,mr->mi", jac["user_p"], ev.user_r)
+    if k > 1:
+        # relative translation: A = [d/dp_i, d/dtheta_i] on keyframe i, B = [d/dp_j, 0] on j
+        A = np.concatenate([jac["rt_pi"], jac["rt_ti"]], axis=2)
+        B = jac["rt_pj"]
+        D[:-1] += ata(A, A)
+        D[1:, :3, :3] += ata(B, B)
+        U[:, :, :3] += ata(A, B)
+        g[:-1] += np.einsum("mri,mr->mi", A, ev.rt_r)
+        g[1:, :3] += np.einsum("mri,mr->mi", B, ev.rt_r)
+        # relative rotation: theta_i and theta_j
+        Ai, Bj = jac["rr_ti"], jac["rr_tj"]
+        D[:-1, 3:, 3:] += ata(Ai, Ai)
+        D[1:, 3:, 3:] += ata(Bj, Bj)
+        U[:, 3:, 3:] += ata(Ai, Bj)
+        g[:-1, 3:] += np.einsum("mri,mr->mi", Ai, ev.rr_r)
+        g[1:, 3:] += np.einsum("mri,mr->mi", Bj, ev.rr_r)
+    Gt = jac["g_t"]
+    D[:, 3:, 3:] += ata(Gt, Gt)
+    g[:, 3:] += np.einsum("mri,mr->mi", Gt, ev.grav_r)
+    return D, U, g.ravel()
