@@ -1,0 +1,201 @@
+"""Tracking: steps (+ WiFi) -> matched positions with uncertainty, online or for a whole walk.
+
+:class:`Tracker` is the online engine (one call per step, as a phone or a REST session
+would feed it). :func:`track_walk` runs it over a parsed walk and back-tracks the most
+likely path at the end (offline Viterbi: every step's position uses the whole walk).
+
+f2 is computed online: before step t, the heading error over the last w steps of the
+current most likely path (:func:`posefix.mapmatch.features.heading_errors_from_path`)
+rotates the step (the patent's "estimate heading from the confident path and correct the
+heading bias"). The patent's other optimisation, replacing a confident column by its
+Gaussian, is ``collapse_sigma_m``: when the column's major 1σ is below it, the column is
+replaced by the log-density of its Gaussian on the vertices within 3σ, which bounds the
+active set. It is off (0) by default because the beam already keeps steps fast here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from posefix.mapmatch.features import FeatureSigmas, f_gaussian_position, f_step
+from posefix.mapmatch.viterbi import GaussianSummary, ViterbiFilter, gaussian_summary
+
+__all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "start_log_prior"]
+
+
+def start_log_prior(p_xy_m: np.ndarray, start_xy_m: tuple[float, float] | None,
+                    sigma_m: float = 1.0) -> np.ndarray:
+    """Log prior (V,) over vertices: Gaussian (σ = ``sigma_m``, cut at 3σ but never empty)
+    around a known start, or uniform over all reachable vertices when ``start_xy_m`` is None."""
+    if start_xy_m is None:
+        return np.zeros(p_xy_m.shape[0])
+    d2 = np.sum((p_xy_m - np.asarray(start_xy_m, dtype=float)) ** 2, axis=1)
+    lp = -0.5 * d2 / sigma_m**2
+    cut = max(9.0 * sigma_m**2, float(np.min(d2)) + 1e-9)
+    return np.where(d2 <= cut, lp, -np.inf)
+
+
+@dataclass(frozen=True)
+class TrackPoint:
+    """One step's output: filtered (online) position and its Gaussian summary."""
+
+    t_ms: int
+    vertex: int
+    summary: GaussianSummary
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """A tracked walk: ``t_ms`` (T+1,), ``p_xy_m`` (T+1, 2) of the offline most likely path,
+    ``sigma_major_m``/``sigma_minor_m``/``angle_deg`` (T+1,) of each step's column, and
+    ``dr_xy_m`` (T+1, 2) the plain dead-reckoning track from the same start."""
+
+    t_ms: np.ndarray
+    p_xy_m: np.ndarray
+    vertex: np.ndarray
+    sigma_major_m: np.ndarray
+    sigma_minor_m: np.ndarray
+    angle_deg: np.ndarray
+    online_xy_m: np.ndarray
+    dr_xy_m: np.ndarray
+    time_per_step_s: float
+
+
+class Tracker:
+    """Online CRF tracker over a :class:`posefix.mapmatch.model.Model`.
+
+    ``step(step_xy_m, t_ms, wifi=None, peak=None)``: one detected step as a floor-frame
+    vector (m, heading bias already applied); ``wifi`` an optional ``(mean (2,), cov (2,2))``
+    position predicted by the fingerprint map, ``peak`` an optional ``(xy (2,), sigma_m)``
+    RSSI-peak location. Returns a :class:`TrackPoint`.
+    """
+
+    def __init__(self, model, start_xy_m: tuple[float, float] | None = None, t0_ms: int = 0,
+                 start_sigma_m: float = 1.0, collapse_sigma_m: float = 0.0):
+        self.model = model
+        g = model.graph
+        self.graph = g
+        self.p_xy_m = g.p_xy_m
+        self.offsets_m = g.offsets_m
+        self.w = model.weights
+        self.sig: FeatureSigmas = model.sigmas
+        self.collapse_sigma_m = collapse_sigma_m
+        self.filter = ViterbiFilter(g, start_log_prior(self.p_xy_m, start_xy_m, start_sigma_m), beam=model.beam)
+        c = g.cell_m
+        self._c = c
+        self._cum = np.zeros(2)  # dead-reckoning sum (f1)
+        self._cum2 = np.zeros(2)  # heading-corrected sum (f2)
+        self._steps: list[np.ndarray] = []
+        self.t_ms: list[int] = [int(t0_ms)]
+        self._cum_hist = [np.zeros(2)]
+
+    def _increment(self, cum: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        new = cum + step
+        c = self._c
+        return new, np.round(new / c) * c - np.round(cum / c) * c
+
+    def _heading_error(self) -> float:
+        s = self.sig
+        n = len(self._steps)
+        a = max(0, n - s.window_steps)
+        if n - a < 2:
+            return 0.0 if not hasattr(self, "_last_err") else self._last_err
+        dr = self._cum_hist[n] - self._cum_hist[a]
+        path = self.filter.best_path(last_n=n - a)
+        pp = self.p_xy_m[path[-1]] - self.p_xy_m[path[0]]
+        err = getattr(self, "_last_err", 0.0)
+        if np.linalg.norm(dr) >= s.min_span_m and np.linalg.norm(pp) > 0:
+            e = np.arctan2(pp[1], pp[0]) - np.arctan2(dr[1], dr[0])
+            err = float((e + np.pi) % (2 * np.pi) - np.pi)
+        self._last_err = err
+        return err
+
+    def transition_scores(self, step_xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(K,) weighted transition scores for this step, plus its raw f1 and f2 rows."""
+        step = np.asarray(step_xy_m, dtype=float)
+        self._cum, inc1 = self._increment(self._cum, step)
+        f1 = f_step(self.offsets_m, step[None], inc1[None], self.sig)[0]
+        w1, w2 = self.w["f1"], self.w["f2"]
+        f2 = np.zeros_like(f1)
+        if w2 != 0.0:
+            e = self._heading_error()
+            c, s = np.cos(e), np.sin(e)
+            step2 = np.array([c * step[0] - s * step[1], s * step[0] + c * step[1]])
+            self._cum2, inc2 = self._increment(self._cum2, step2)
+            f2 = f_step(self.offsets_m, step2[None], inc2[None], self.sig)[0]
+        return w1 * f1 + w2 * f2, f1, f2
+
+    def state_scores(self, wifi=None, peak=None) -> np.ndarray | None:
+        """(V,) weighted state scores from a WiFi prediction and/or an RSSI peak, or None."""
+        out = None
+        if wifi is not None and self.w["f3"] != 0.0:
+            out = self.w["f3"] * f_gaussian_position(self.p_xy_m, wifi[0], wifi[1])
+        if peak is not None and self.w["f4"] != 0.0:
+            f4 = self.w["f4"] * f_gaussian_position(self.p_xy_m, peak[0], np.eye(2) * peak[1] ** 2)
+            out = f4 if out is None else out + f4
+        return out
+
+    def step(self, step_xy_m: np.ndarray, t_ms: int, wifi=None, peak=None) -> TrackPoint:
+        trans, _, _ = self.transition_scores(step_xy_m)
+        self.filter.step(trans, self.state_scores(wifi, peak))
+        self._steps.append(np.asarray(step_xy_m, dtype=float))
+        self._cum_hist.append(self._cum_hist[-1] + self._steps[-1])
+        self.t_ms.append(int(t_ms))
+        col = self.filter.column()
+        summ = gaussian_summary(self.p_xy_m, col, min_sigma_m=self._c / np.sqrt(12.0))
+        if self.collapse_sigma_m > 0 and summ.sigma_major_m < self.collapse_sigma_m:
+            g = f_gaussian_position(self.p_xy_m, summ.mean_xy_m, summ.cov_m2)
+            self.filter.delta = np.where(np.isfinite(self.filter.delta) & (g > -4.5), g, -np.inf)
+        return TrackPoint(t_ms=int(t_ms), vertex=int(np.argmax(col)), summary=summ)
+
+    def best_path(self) -> np.ndarray:
+        """Offline answer so far: the most likely vertex sequence y_0..y_t."""
+        return self.filter.best_path()
+
+
+def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, fingerprints=None,
+               heading: str = "rotation_vector") -> TrackResult:
+    """Track a parsed :class:`posefix.mapmatch.sensors.Walk` (its waypoints are not read).
+
+    ``fingerprints``: an optional :class:`posefix.mapmatch.fingerprints.FingerprintMap`
+    giving f3 (and f4) observations, each attached to the step nearest in time.
+    """
+    import time
+
+    from posefix.mapmatch.sensors import steps_from_walk
+
+    steps = steps_from_walk(walk, heading=heading)
+    vec = steps.vectors_m(model.step_model)
+    t0 = int(walk.acc[0, 0])
+    wifi_at: dict[int, tuple] = {}
+    peak_at: dict[int, tuple] = {}
+    if fingerprints is not None and len(steps):
+        for t_ms, mean, cov in fingerprints.predict_walk(walk):
+            wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (mean, cov)
+        for t_ms, xy, sig in fingerprints.peaks_in_walk(walk):
+            peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (xy, sig)
+    tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0)
+    pts = [gaussian_summary(tr.p_xy_m, tr.filter.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))]
+    online = [tr.p_xy_m[int(np.argmax(tr.filter.delta))]]
+    tic = time.perf_counter()
+    for i in range(len(steps)):
+        tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi_at.get(i), peak=peak_at.get(i))
+        pts.append(tp.summary)
+        online.append(tr.p_xy_m[tp.vertex])
+    path = tr.best_path()
+    elapsed = time.perf_counter() - tic
+    start = np.zeros(2) if start_xy_m is None else np.asarray(start_xy_m, dtype=float)
+    dr = start + np.vstack([np.zeros((1, 2)), np.cumsum(vec, axis=0)])
+    return TrackResult(
+        t_ms=np.asarray(tr.t_ms, dtype=np.int64),
+        p_xy_m=tr.p_xy_m[path],
+        vertex=path,
+        sigma_major_m=np.array([p.sigma_major_m for p in pts]),
+        sigma_minor_m=np.array([p.sigma_minor_m for p in pts]),
+        angle_deg=np.array([p.angle_deg for p in pts]),
+        online_xy_m=np.asarray(online),
+        dr_xy_m=dr,
+        time_per_step_s=elapsed / max(len(steps), 1),
+    )
