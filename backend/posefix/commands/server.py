@@ -1,3 +1,151 @@
-"""Commands of the 'server' area, registered on posefix.cli.app."""
+"""Commands of the 'server' area: serve, worker, users create, db upgrade/downgrade."""
 
-from posefix.cli import app  # noqa: F401
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from posefix.cli import app
+
+users_app = typer.Typer(help="Manage user accounts.", no_args_is_help=True)
+db_app = typer.Typer(help="Database schema (Alembic migrations).", no_args_is_help=True)
+app.add_typer(users_app, name="users")
+app.add_typer(db_app, name="db")
+
+MIGRATIONS_DIR = Path(__file__).resolve().parents[3] / "migrations"
+
+
+def alembic_config(database_url: str | None = None):  # type: ignore[no-untyped-def]
+    """Alembic config pointing at the repository's migrations, usable from any directory."""
+    from alembic.config import Config
+
+    from posefix.config import Settings
+
+    cfg = Config(str(MIGRATIONS_DIR / "alembic.ini"))
+    cfg.set_main_option("script_location", str(MIGRATIONS_DIR))
+    cfg.set_main_option("sqlalchemy.url", (database_url or Settings().resolved_database_url).replace("%", "%%"))
+    return cfg
+
+
+def upgrade_database(database_url: str | None = None, revision: str = "heads") -> None:
+    from alembic import command
+
+    command.upgrade(alembic_config(database_url), revision)
+
+
+@db_app.command("upgrade")
+def db_upgrade(revision: Annotated[str, typer.Argument(help="target revision")] = "heads") -> None:
+    """Migrate the database (POSEFIX_DATABASE_URL) up to REVISION (default: latest)."""
+    upgrade_database(None, revision)
+    typer.echo(f"database upgraded to {revision}")
+
+
+@db_app.command("downgrade")
+def db_downgrade(revision: Annotated[str, typer.Argument(help="target revision, e.g. -1 or base")]) -> None:
+    """Migrate the database down to REVISION."""
+    from alembic import command
+
+    command.downgrade(alembic_config(), revision)
+    typer.echo(f"database downgraded to {revision}")
+
+
+@users_app.command("create")
+def users_create(
+    username: Annotated[str, typer.Option("--username", help="login name")],
+    role: Annotated[str, typer.Option("--role", help="admin, reviewer, operator or client")] = "operator",
+    password_stdin: Annotated[bool, typer.Option("--password-stdin", help="read the password from stdin")] = False,
+) -> None:
+    """Create a user (asks for the password unless --password-stdin)."""
+    from posefix.config import Settings
+    from posefix.db import Database
+    from posefix.errors import AppError
+    from posefix.users.models import Role
+    from posefix.users.service import create_user
+
+    try:
+        role_value = Role(role)
+    except ValueError:
+        raise typer.BadParameter(f"role must be one of {', '.join(r.value for r in Role)}", param_hint="--role") from None
+    if password_stdin:
+        password = sys.stdin.readline().rstrip("\r\n")
+    else:
+        password = typer.prompt("password", hide_input=True, confirmation_prompt=True)
+    if len(password) < 8:
+        typer.echo("error: the password must have at least 8 characters", err=True)
+        raise typer.Exit(2)
+    settings = Settings()
+    db = Database(settings.resolved_database_url)
+    try:
+        with db.transaction() as session:
+            user = create_user(session, username, password, role_value)
+            uid = user.id
+    except AppError as exc:
+        typer.echo(f"error: {exc.detail}", err=True)
+        raise typer.Exit(1) from None
+    finally:
+        db.dispose()
+    typer.echo(f"created {role_value.value} {username!r} (id {uid})")
+
+
+@app.command("serve")
+def serve(
+    host: Annotated[str, typer.Option(help="address to listen on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="port")] = 8000,
+    workers: Annotated[int, typer.Option(help="HTTP worker processes (PostgreSQL only)")] = 1,
+    embedded_worker: Annotated[bool | None, typer.Option(help="run a job worker thread in the server (default: on SQLite)")] = None,
+    migrate: Annotated[bool, typer.Option(help="apply migrations before starting")] = True,
+) -> None:
+    """Serve the API and the front end (and, on SQLite, the job worker)."""
+    import uvicorn
+
+    from posefix.config import Settings
+    from posefix.main import create_app
+
+    settings = Settings()
+    if migrate:
+        upgrade_database(settings.resolved_database_url)
+    embedded = settings.is_sqlite and settings.embedded_worker if embedded_worker is None else embedded_worker
+    if workers > 1:
+        if settings.is_sqlite:
+            typer.echo("error: several HTTP workers need PostgreSQL", err=True)
+            raise typer.Exit(2)
+        uvicorn.run("posefix.main:create_app", factory=True, host=host, port=port, workers=workers, proxy_headers=True, log_config=None)
+        return
+    application = create_app(settings, embedded_worker=embedded)
+    typer.echo(f"posefix serving on http://{host}:{port}/ ({'embedded worker, ' if embedded else ''}{settings.resolved_database_url.split('://')[0]})")
+    uvicorn.run(application, host=host, port=port, proxy_headers=True, log_config=None)
+
+
+@app.command("worker")
+def worker(
+    once: Annotated[bool, typer.Option(help="process jobs until none is left, then exit")] = False,
+) -> None:
+    """Run a job worker (any number may share the database). SIGTERM finishes the current job."""
+    from posefix.config import Settings
+    from posefix.db import Database
+    from posefix.main import configure_logging
+    from posefix.worker.runner import Worker
+
+    settings = Settings()
+    configure_logging(settings)
+    db = Database(settings.resolved_database_url)
+    w = Worker(db, settings)
+
+    def _graceful(signum: int, _frame: object) -> None:
+        w.stop()
+
+    signal.signal(signal.SIGTERM, _graceful)
+    signal.signal(signal.SIGINT, _graceful)
+    typer.echo(f"worker {w.worker_id} started", err=True)
+    try:
+        if once:
+            while w.run_once():
+                pass
+        else:
+            w.run()
+    finally:
+        db.dispose()

@@ -1,0 +1,128 @@
+"""Request dependencies as ``Annotated`` aliases, so routes read like prose.
+
+``SessionDep`` is the request's unit of work (committed when the route returns, rolled back
+on error). The principal aliases (``AnyUser``, ``AdminUser``...) authenticate (session
+cookie or bearer token), enforce CSRF rules for cookie sessions and check the role.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Annotated
+from urllib.parse import urlsplit
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from posefix.config import Settings
+from posefix.db import Database
+from posefix.errors import Forbidden, Unauthorized, UnsupportedMediaType
+from posefix.users.models import Role, TokenScope
+from posefix.users.service import Principal, resolve_session, resolve_token
+
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def get_database(request: Request) -> Database:
+    return request.app.state.db
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    db: Database = request.app.state.db
+    with db.transaction(write=request.method not in SAFE_METHODS) as session:
+        yield session
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+DatabaseDep = Annotated[Database, Depends(get_database)]
+# scope="function": commit before the response is sent, so a failed commit is an error response.
+SessionDep = Annotated[Session, Depends(get_session, scope="function")]
+
+
+def client_ip(request: Request) -> str:
+    return request.client.host if request.client else "unknown"
+
+
+def expected_origins(request: Request, settings: Settings) -> set[str]:
+    if settings.allowed_origins:
+        return {o.rstrip("/") for o in settings.allowed_origins}
+    host = request.headers.get("host", "")
+    return {f"{request.url.scheme}://{host}", f"http://{host}", f"https://{host}"}
+
+
+def check_origin(request: Request, settings: Settings, *, required: bool) -> None:
+    """CSRF: the browser's Origin (or Referer) must be ours."""
+    origin = request.headers.get("origin")
+    if origin is None:
+        referer = request.headers.get("referer")
+        if referer:
+            parts = urlsplit(referer)
+            origin = f"{parts.scheme}://{parts.netloc}"
+    if origin is None:
+        if required:
+            raise Forbidden("missing Origin header on a cookie-authenticated request", code="csrf_failed")
+        return
+    if origin.rstrip("/") not in expected_origins(request, settings):
+        raise Forbidden(f"cross-site request from origin {origin!r} refused", code="csrf_failed")
+
+
+def check_json_body(request: Request) -> None:
+    has_body = request.headers.get("content-length", "0") not in ("", "0") or "transfer-encoding" in request.headers
+    if not has_body:
+        return
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype != "application/json":
+        raise UnsupportedMediaType(
+            f"request bodies must be application/json (got {ctype or 'none'})", code="json_required"
+        )
+
+
+def authenticate(request: Request, session: Session, settings: Settings, *, allow_multipart: bool) -> Principal:
+    db: Database = request.app.state.db
+    auth = request.headers.get("authorization")
+    if auth:
+        scheme, _, value = auth.partition(" ")
+        if scheme.lower() != "bearer" or not value.strip():
+            raise Unauthorized("Authorization must be 'Bearer <token>'", code="invalid_token")
+        principal = resolve_token(db, session, settings, value.strip())
+        if request.method not in SAFE_METHODS and principal.scope != TokenScope.write:
+            raise Forbidden("this API token is read-only", code="insufficient_scope")
+        return principal
+    sid = request.cookies.get(settings.session_cookie_name)
+    if not sid:
+        raise Unauthorized("not logged in", code="not_authenticated")
+    principal = resolve_session(db, session, settings, sid)
+    if request.method not in SAFE_METHODS:
+        check_origin(request, settings, required=True)
+        if not allow_multipart:
+            check_json_body(request)
+    return principal
+
+
+def require(*roles: Role, allow_multipart: bool = False) -> Callable[..., Principal]:
+    allowed = frozenset(roles)
+
+    def dependency(request: Request, session: SessionDep, settings: SettingsDep) -> Principal:
+        principal = authenticate(request, session, settings, allow_multipart=allow_multipart)
+        if principal.role not in allowed:
+            raise Forbidden(
+                f"role {principal.role.value} may not do this (needs {', '.join(sorted(r.value for r in allowed))})",
+                code="role_forbidden",
+            )
+        request.state.user_id = principal.user_id
+        return principal
+
+    return dependency
+
+
+ALL_ROLES = tuple(Role)
+AnyUser = Annotated[Principal, Depends(require(*ALL_ROLES))]
+AdminUser = Annotated[Principal, Depends(require(Role.admin))]
+ReviewerUser = Annotated[Principal, Depends(require(Role.admin, Role.reviewer))]
+EditorUser = Annotated[Principal, Depends(require(Role.admin, Role.reviewer, Role.operator))]
+UploaderUser = Annotated[Principal, Depends(require(Role.admin, Role.client, allow_multipart=True))]
+OwnerUser = Annotated[Principal, Depends(require(Role.admin, Role.client))]

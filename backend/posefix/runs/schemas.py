@@ -1,0 +1,85 @@
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from posefix.runs.models import RunStatus
+
+
+class RunPublic(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    name: str
+    status: RunStatus
+    verified: bool
+    adjusted: bool
+    owner_id: int | None
+    source_format: str
+    original_filename: str
+    n_samples: int
+    n_keyframes: int
+    t_start_s: float
+    t_end_s: float
+    recorded_start: dt.datetime | None
+    recorded_end: dt.datetime | None
+    bbox: list[float] = Field(description="[min_lon, min_lat, max_lon, max_lat]")
+    length_m: float
+    orientation_derived: bool
+    revision: int = Field(description="latest revision whose data is ready")
+    head_revision: int = Field(description="latest revision claimed by a submitted batch")
+    rules: dict[str, Any]
+    n_images: int = 0
+    created_at: dt.datetime
+    updated_at: dt.datetime
+
+
+class RunList(BaseModel):
+    items: list[RunPublic]
+    total: int
+    limit: int
+    offset: int
+
+
+class RunEventPublic(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    at: dt.datetime
+    actor_id: int | None
+    action: str
+    from_status: str | None
+    to_status: str | None
+    revision: int | None
+    task_id: int | None
+    comment: str | None
+    detail: dict[str, Any] | None
+
+
+class RunHistory(BaseModel):
+    items: list[RunEventPublic]
+
+
+class ReviewRequest(BaseModel):
+    decision: str = Field(pattern="^(accept|reject)$")
+    comment: str | None = Field(default=None, max_length=4000)
+
+
+class ImagePublic(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    run_id: int
+    filename: str
+    content_type: str
+    size_bytes: int
+    width: int
+    height: int
+    sample_index: int | None
+    keyframe: int | None
+    exif_lon: float | None
+    exif_lat: float | None
+    exif_time: str | None
+
+
+class ImageList(BaseModel):
+    items: list[ImagePublic]
