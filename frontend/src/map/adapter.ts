@@ -1,0 +1,151 @@
+/**
+ * The map adapter: the only code that turns editor state into MapLibre sources and layers.
+ * It never changes state; on each store change it calls `source.setData` for just the
+ * sources whose inputs changed (while dragging, only the tiny staging source), so 10,000
+ * keyframes stay smooth.
+ */
+import type { GeoJSONSource, Map as MlMap } from "maplibre-gl";
+import { type EditorState, currentEdits } from "../state/editor";
+import {
+  type FC,
+  STATUS_COLORS,
+  ghostFC,
+  keyframesFC,
+  refusalFC,
+  selectionFC,
+  stagingFC,
+  trackFC,
+} from "./features";
+import { arrowIcon, chevronIcon } from "./icons";
+
+export const KEYFRAME_LAYER = "pf-kf-hit";
+
+interface SourceSpec {
+  id: string;
+  deps: (s: EditorState) => unknown[];
+  build: (s: EditorState) => FC;
+}
+
+const SOURCES: SourceSpec[] = [
+  { id: "pf-ghost", deps: (s) => [s.doc, s.showGhost], build: ghostFC },
+  { id: "pf-track", deps: (s) => [s.doc, currentEdits(s), s.preview], build: trackFC },
+  { id: "pf-keyframes", deps: (s) => [s.doc, currentEdits(s), s.preview], build: keyframesFC },
+  { id: "pf-selection", deps: (s) => [s.doc, currentEdits(s), s.preview, s.selected, s.rangeAnchor], build: selectionFC },
+  { id: "pf-staging", deps: (s) => [s.doc, s.staging], build: stagingFC },
+  { id: "pf-refusal", deps: (s) => [s.refusal], build: refusalFC },
+];
+
+const statusColor: unknown[] = ["match", ["get", "s"]];
+for (const [k, v] of Object.entries(STATUS_COLORS)) statusColor.push(k, v);
+statusColor.push("#64748b");
+
+export class MapAdapter {
+  private lastDeps = new Map<string, unknown[]>();
+  private hidden: number | null = null;
+
+  constructor(private readonly map: MlMap) {}
+
+  /** Add sources, images and layers (again after a basemap style switch). */
+  install(): void {
+    const m = this.map;
+    if (!m.hasImage("pf-arrow")) m.addImage("pf-arrow", arrowIcon(), { sdf: true, pixelRatio: 2 });
+    if (!m.hasImage("pf-chevron")) m.addImage("pf-chevron", chevronIcon(), { sdf: true, pixelRatio: 2 });
+    for (const src of SOURCES) {
+      if (!m.getSource(src.id)) m.addSource(src.id, { type: "geojson", data: { type: "FeatureCollection", features: [] } });
+    }
+    const add = (layer: Parameters<MlMap["addLayer"]>[0]) => {
+      if (!m.getLayer(layer.id)) m.addLayer(layer);
+    };
+    add({ id: "pf-ghost-line", type: "line", source: "pf-ghost", paint: { "line-color": "#111827", "line-opacity": 0.3, "line-width": 5 }, layout: { "line-cap": "round", "line-join": "round" } });
+    add({ id: "pf-track-casing", type: "line", source: "pf-track", paint: { "line-color": "#ffffff", "line-width": 5, "line-opacity": 0.9 }, layout: { "line-cap": "round", "line-join": "round" } });
+    add({ id: "pf-track-line", type: "line", source: "pf-track", paint: { "line-color": "#0f172a", "line-width": 2.5 }, layout: { "line-cap": "round", "line-join": "round" } });
+    add({
+      id: "pf-track-arrows",
+      type: "symbol",
+      source: "pf-track",
+      layout: { "symbol-placement": "line", "symbol-spacing": 80, "icon-image": "pf-chevron", "icon-size": 0.9, "icon-allow-overlap": true, "icon-ignore-placement": true },
+      paint: { "icon-color": "#0f172a", "icon-halo-color": "#fff", "icon-halo-width": 1 },
+    });
+    add({
+      id: "pf-selection-ring",
+      type: "circle",
+      source: "pf-selection",
+      paint: {
+        "circle-radius": 13,
+        "circle-color": "rgba(0,0,0,0)",
+        "circle-stroke-width": 3,
+        "circle-stroke-color": ["match", ["get", "kind"], "anchor", "#a21caf", "#0ea5e9"],
+      },
+    });
+    // A wider transparent circle to grab keyframes with a finger or a quick mouse.
+    add({
+      id: KEYFRAME_LAYER,
+      type: "circle",
+      source: "pf-keyframes",
+      paint: { "circle-radius": ["interpolate", ["linear"], ["zoom"], 12, 4, 17, 14], "circle-color": "#000", "circle-opacity": 0 },
+    });
+    add({
+      id: "pf-kf-circle",
+      type: "circle",
+      source: "pf-keyframes",
+      paint: {
+        "circle-radius": ["interpolate", ["linear"], ["zoom"], 12, ["match", ["get", "s"], "fixed", 2, 3], 17, ["match", ["get", "s"], "fixed", 4, 7]],
+        "circle-color": statusColor as never,
+        "circle-opacity": ["match", ["get", "s"], "deleted", 0.45, 1],
+        "circle-stroke-color": "#ffffff",
+        "circle-stroke-width": ["interpolate", ["linear"], ["zoom"], 12, 0.5, 17, 1.5],
+      },
+    });
+    add({
+      id: "pf-kf-heading",
+      type: "symbol",
+      source: "pf-keyframes",
+      minzoom: 14,
+      filter: ["!=", ["get", "s"], "fixed"],
+      layout: {
+        "icon-image": "pf-arrow",
+        "icon-size": ["interpolate", ["linear"], ["zoom"], 14, 0.5, 18, 1],
+        "icon-rotate": ["get", "h"],
+        "icon-rotation-alignment": "map",
+        "icon-offset": [0, -14],
+        "icon-allow-overlap": true,
+        "icon-ignore-placement": true,
+      },
+      paint: { "icon-color": statusColor as never, "icon-halo-color": "#fff", "icon-halo-width": 1 },
+    });
+    add({ id: "pf-staging-rubber", type: "line", source: "pf-staging", filter: ["==", ["get", "kind"], "rubber"], paint: { "line-color": "#0ea5e9", "line-width": 2, "line-dasharray": [2, 2] } });
+    add({ id: "pf-staging-point", type: "circle", source: "pf-staging", filter: ["==", ["get", "kind"], "point"], paint: { "circle-radius": 8, "circle-color": "#0ea5e9", "circle-stroke-color": "#fff", "circle-stroke-width": 2 } });
+    add({ id: "pf-refusal-ring", type: "circle", source: "pf-refusal", paint: { "circle-radius": 14, "circle-color": "rgba(220,38,38,0.15)", "circle-stroke-color": "#dc2626", "circle-stroke-width": 3 } });
+    this.lastDeps.clear();
+    this.hidden = null;
+  }
+
+  /** Push the sources whose inputs changed since the last call. */
+  render(s: EditorState): void {
+    for (const src of SOURCES) {
+      const deps = src.deps(s);
+      const last = this.lastDeps.get(src.id);
+      if (last && last.length === deps.length && last.every((d, i) => d === deps[i])) continue;
+      const source = this.map.getSource(src.id) as GeoJSONSource | undefined;
+      if (!source) continue;
+      source.setData(src.build(s));
+      this.lastDeps.set(src.id, deps);
+    }
+    const hide = s.staging ? s.staging.index : null;
+    if (hide !== this.hidden && this.map.getLayer(KEYFRAME_LAYER)) {
+      // Hide the dragged keyframe itself; the staging point stands in for it.
+      const f = hide === null ? null : (["!=", ["get", "i"], hide] as never);
+      this.map.setFilter(KEYFRAME_LAYER, f);
+      this.map.setFilter("pf-kf-circle", f);
+      this.map.setFilter("pf-kf-heading", hide === null ? ["!=", ["get", "s"], "fixed"] : (["all", ["!=", ["get", "s"], "fixed"], ["!=", ["get", "i"], hide]] as never));
+      this.hidden = hide;
+    }
+    this.setVisible("pf-ghost-line", s.showGhost);
+  }
+
+  private setVisible(layer: string, on: boolean): void {
+    if (!this.map.getLayer(layer)) return;
+    const v = on ? "visible" : "none";
+    if (this.map.getLayoutProperty(layer, "visibility") !== v) this.map.setLayoutProperty(layer, "visibility", v);
+  }
+}

@@ -1,0 +1,192 @@
+/**
+ * The engine's edit rules, ported line for line from `backend/posefix/core/rules.py` so the
+ * browser refuses exactly what the server refuses; both are checked against
+ * tests/vectors/edit_rules.json.
+ *
+ * Positions are planar keyframe positions in metres, `[east_m, north_m]` in a local frame
+ * (the caller projects lon/lat first, see `projectEnM`). Indices are keyframe indices.
+ *
+ * Rules, applied in this order to the moves sorted by keyframe index:
+ * 1. out_of_range   the index names no keyframe;
+ * 2. duplicate      the same keyframe is moved twice in one batch;
+ * 3. deleted        the keyframe is deleted in this batch;
+ * 4. not_adjustable only every `every_n`-th keyframe (index % every_n == 0) is adjustable;
+ * 5. locked         within `lock_n` keyframes after ("forward") or on either side of ("both")
+ *                   an earlier-edited keyframe or an accepted move of this batch with a
+ *                   lower index;
+ * 6. too_far        the move is longer than `max_move_m` (0 = no limit);
+ * 7. order_reversed between two consecutive moved keyframes i < j (earlier edits included)
+ *                   the corrected chord c_j - c_i points backwards along the reported chord
+ *                   (dot <= 0; chords shorter than 1 m are not judged). "refuse" refuses the
+ *                   later move, "flag" accepts it with a flag.
+ * Rules 1-6 always refuse. A refused move is left out before rule 7 is judged.
+ */
+import type { EditRules, Refusal } from "../state/types";
+
+export const REASONS = [
+  "out_of_range",
+  "duplicate",
+  "deleted",
+  "not_adjustable",
+  "locked",
+  "too_far",
+  "order_reversed",
+] as const;
+
+export const MIN_CHORD_M = 1.0;
+
+export type EnM = readonly [number, number];
+
+/** Move keyframe `index` to (east_m, north_m) in the local frame. */
+export interface KeyframeMove {
+  index: number;
+  east_m: number;
+  north_m: number;
+}
+
+export interface RuleCheck {
+  accepted: KeyframeMove[];
+  refusals: Refusal[];
+  flags: Refusal[];
+}
+
+export const DEFAULT_RULES: EditRules = {
+  every_n: 1,
+  lock_n: 0,
+  lock_direction: "forward",
+  max_move_m: 0,
+  order_rule: "flag",
+  deleted: "remove",
+};
+
+/** Rules from the server's JSON, defaults for missing keys (as `EditRules.from_json`). */
+export function rulesFromJson(data: Partial<EditRules> | null | undefined): EditRules {
+  return { ...DEFAULT_RULES, ...(data ?? {}) };
+}
+
+/** Whether keyframe `index` is one an operator may move at all. */
+export function isAdjustable(index: number, rules: EditRules): boolean {
+  return index % Math.max(Math.trunc(rules.every_n), 1) === 0;
+}
+
+/** Keyframe indices locked by an edit at `index` (the edited one excluded). */
+export function lockSpan(index: number, nKeyframes: number, rules: EditRules): number[] {
+  const hi = Math.min(index + rules.lock_n, nKeyframes - 1);
+  const lo = rules.lock_direction === "both" ? Math.max(index - rules.lock_n, 0) : index + 1;
+  const out: number[] = [];
+  for (let j = lo; j <= hi; j++) out.push(j);
+  return out;
+}
+
+/** Keyframes locked by the edited keyframes (which are never locked themselves). */
+export function lockedMask(nKeyframes: number, edited: Iterable<number>, rules: EditRules): boolean[] {
+  const locked = new Array<boolean>(nKeyframes).fill(false);
+  const ed = [...edited];
+  for (const i of ed) for (const j of lockSpan(i, nKeyframes, rules)) locked[j] = true;
+  for (const i of ed) if (i >= 0 && i < nKeyframes) locked[i] = false;
+  return locked;
+}
+
+/** Apply the rules to one batch of moves (see the module comment). */
+export function checkEdits(
+  rules: EditRules,
+  reportedEnM: readonly EnM[],
+  moves: readonly KeyframeMove[],
+  deleted: Iterable<number> = [],
+  editedBefore: ReadonlyMap<number, EnM> = new Map(),
+): RuleCheck {
+  const k = reportedEnM.length;
+  const deletedSet = new Set(deleted);
+  const refusals: Refusal[] = [];
+  const flags: Refusal[] = [];
+  const seen = new Set<number>();
+  let accepted: KeyframeMove[] = [];
+  const movedIdx = new Set(moves.map((m) => m.index));
+  const lockSources = [...editedBefore.keys()].filter((i) => !movedIdx.has(i)).sort((a, b) => a - b);
+  const locked = new Set<number>();
+  for (const i of lockSources) for (const j of lockSpan(i, k, rules)) locked.add(j);
+  // Stable sort by index, as Python's sorted().
+  const sorted = moves.map((m, n) => [m, n] as const).sort((a, b) => a[0].index - b[0].index || a[1] - b[1]).map((x) => x[0]);
+  for (const move of sorted) {
+    const i = Math.trunc(move.index);
+    const refusal = firstRefusal(rules, reportedEnM, move, k, seen, deletedSet, locked);
+    seen.add(i);
+    if (refusal) {
+      refusals.push(refusal);
+      continue;
+    }
+    accepted.push(move);
+    for (const j of lockSpan(i, k, rules)) if (j !== i) locked.add(j);
+  }
+  // rule 7 on the accepted moves together with earlier edits
+  const positions = new Map<number, EnM>();
+  for (const [i, xy] of editedBefore) if (!deletedSet.has(i)) positions.set(i, xy);
+  for (const m of accepted) positions.set(m.index, [m.east_m, m.north_m]);
+  const batch = new Set(accepted.map((m) => m.index));
+  const order = [...positions.keys()].sort((a, b) => a - b);
+  const reversed = new Set<number>();
+  for (let n = 0; n + 1 < order.length; n++) {
+    const a = order[n];
+    const b = order[n + 1];
+    const chord = [reportedEnM[b][0] - reportedEnM[a][0], reportedEnM[b][1] - reportedEnM[a][1]];
+    if (Math.hypot(chord[0], chord[1]) < MIN_CHORD_M) continue;
+    const pa = positions.get(a)!;
+    const pb = positions.get(b)!;
+    const moved = [pb[0] - pa[0], pb[1] - pa[1]];
+    if (moved[0] * chord[0] + moved[1] * chord[1] <= 0) {
+      const culprit = batch.has(b) ? b : a;
+      if (!batch.has(culprit) || reversed.has(culprit)) continue;
+      reversed.add(culprit);
+      const other = culprit === b ? a : b;
+      const item: Refusal = {
+        index: culprit,
+        reason: "order_reversed",
+        message:
+          `Moving keyframe ${culprit} puts it on the wrong side of edited keyframe ${other}: ` +
+          "the poses would run backwards along the track.",
+      };
+      (rules.order_rule === "refuse" ? refusals : flags).push(item);
+    }
+  }
+  if (rules.order_rule === "refuse") accepted = accepted.filter((m) => !reversed.has(m.index));
+  return { accepted, refusals, flags };
+}
+
+function firstRefusal(
+  rules: EditRules,
+  reported: readonly EnM[],
+  move: KeyframeMove,
+  k: number,
+  seen: Set<number>,
+  deletedSet: Set<number>,
+  locked: Set<number>,
+): Refusal | null {
+  const i = Math.trunc(move.index);
+  if (i < 0 || i >= k) {
+    return { index: i, reason: "out_of_range", message: `There is no keyframe ${i}; this run has ${k} keyframes (0 to ${k - 1}).` };
+  }
+  if (seen.has(i)) {
+    return { index: i, reason: "duplicate", message: `Keyframe ${i} is moved twice in one batch; send one move per keyframe.` };
+  }
+  if (deletedSet.has(i)) {
+    return { index: i, reason: "deleted", message: `Keyframe ${i} is deleted in this batch and cannot also be moved.` };
+  }
+  if (!isAdjustable(i, rules)) {
+    return { index: i, reason: "not_adjustable", message: `Only every ${rules.every_n}th keyframe can be moved; keyframe ${i} is not one of them.` };
+  }
+  if (locked.has(i)) {
+    return { index: i, reason: "locked", message: `Keyframe ${i} is locked: it lies within ${rules.lock_n} keyframes of an edited keyframe.` };
+  }
+  if (rules.max_move_m > 0) {
+    const distanceM = Math.hypot(move.east_m - reported[i][0], move.north_m - reported[i][1]);
+    if (distanceM > rules.max_move_m) {
+      return { index: i, reason: "too_far", message: `Keyframe ${i} would move ${distanceM.toFixed(1)} m; the limit is ${formatG(rules.max_move_m)} m.` };
+    }
+  }
+  return null;
+}
+
+/** Python's `:g` for the limits we print (no trailing zeros). */
+export function formatG(x: number): string {
+  return String(Number(x.toPrecision(6)));
+}

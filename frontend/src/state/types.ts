@@ -1,0 +1,86 @@
+/**
+ * The editor's data model. Pure data: nothing here knows about MapLibre, the DOM or HTTP.
+ * Positions are WGS84 `[lon, lat]` in degrees (GeoJSON order); distances in metres.
+ */
+
+export type LonLat = readonly [number, number];
+
+/** Editing rules in force for a run (mirrors `posefix.core.rules.EditRules`). */
+export interface EditRules {
+  /** Only every `every_n`-th keyframe (index % every_n == 0) may be moved. */
+  every_n: number;
+  /** An edit locks this many keyframes next to it (see `lock_direction`). */
+  lock_n: number;
+  /** Which neighbours an edit locks: those after it, or on both sides. */
+  lock_direction: "forward" | "both";
+  /** A keyframe may be moved at most this far from its reported position (m); 0 = no limit. */
+  max_move_m: number;
+  /** A move that reverses the order of poses: "refuse" it, or accept it with a "flag". */
+  order_rule: "refuse" | "flag";
+  /** What deletion does: "remove" the keyframe or "flag" it. */
+  deleted: "remove" | "flag";
+}
+
+/** One keyframe of the loaded revision, as the server sent it. */
+export interface Keyframe {
+  index: number;
+  t_s: number;
+  /** Position in the loaded revision. */
+  lonlat: LonLat;
+  /** Position reported by the recorder (GNSS), the reference for `max_move_m`. */
+  reported: LonLat;
+  heading_deg: number;
+  adjustable: boolean;
+  locked: boolean;
+  edited: boolean;
+  deleted: boolean;
+  flagged: boolean;
+  images: string[];
+  correction_m: number;
+}
+
+export interface Drift {
+  offset_m: number | null;
+  spread_m: number | null;
+  raw: unknown;
+}
+
+/** A run's keyframes at one revision: what the editor edits against. */
+export interface RunDoc {
+  runId: string;
+  name: string;
+  revision: number;
+  rules: EditRules;
+  keyframes: Keyframe[];
+  drift: Drift | null;
+}
+
+/** The operator's unsaved edits: what one submit sends. Immutable; replaced on change. */
+export interface Edits {
+  /** keyframe index -> proposed position. */
+  readonly moves: ReadonlyMap<number, LonLat>;
+  readonly deleted: ReadonlySet<number>;
+  readonly accept: boolean;
+}
+
+export type RefusalReason =
+  | "out_of_range"
+  | "duplicate"
+  | "deleted"
+  | "not_adjustable"
+  | "locked"
+  | "too_far"
+  | "order_reversed"
+  | string;
+
+export interface Refusal {
+  index: number;
+  reason: RefusalReason;
+  message: string;
+}
+
+export const EMPTY_EDITS: Edits = Object.freeze({
+  moves: new Map<number, LonLat>(),
+  deleted: new Set<number>(),
+  accept: false,
+});

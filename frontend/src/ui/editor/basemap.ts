@@ -1,0 +1,83 @@
+/**
+ * The basemap: the server's MapLibre style (all configured tile sources), and a switcher
+ * that shows one source at a time by toggling the visibility of the layers drawing it.
+ * Attribution comes from each source's `attribution` (MapLibre's attribution control).
+ */
+import type { Map as MlMap, StyleSpecification } from "maplibre-gl";
+import { api } from "../../api/endpoints";
+import { h } from "../dom";
+
+export interface BasemapOption {
+  source: string;
+  label: string;
+  kind: string;
+  layers: string[];
+}
+
+/** A plain style to fall back on when the server has no basemap (the editor still works). */
+export const BLANK_STYLE: StyleSpecification = {
+  version: 8,
+  sources: {},
+  layers: [{ id: "background", type: "background", paint: { "background-color": "#eef2f5" } }],
+};
+
+/** Fetch the style; null (and the reason) when it cannot be had. */
+export async function fetchStyle(): Promise<{ style: StyleSpecification; note: string | null }> {
+  try {
+    const res = await fetch(api.styleUrl(), { credentials: "same-origin" });
+    if (!res.ok) return { style: BLANK_STYLE, note: `No basemap (style.json: ${res.status}).` };
+    return { style: (await res.json()) as StyleSpecification, note: null };
+  } catch (err) {
+    return { style: BLANK_STYLE, note: `No basemap: ${(err as Error).message}` };
+  }
+}
+
+/** Basemap options from the style: one per source, with kind/title from style metadata. */
+export function basemapOptions(style: StyleSpecification): BasemapOption[] {
+  const meta = ((style.metadata ?? {}) as Record<string, unknown>)["posefix:sources"] as Record<string, { kind?: string; title?: string }> | undefined;
+  const bySource = new Map<string, string[]>();
+  for (const l of style.layers) {
+    const src = (l as { source?: string }).source;
+    if (!src || src.startsWith("pf-")) continue;
+    if (!bySource.has(src)) bySource.set(src, []);
+    bySource.get(src)!.push(l.id);
+  }
+  return [...bySource].map(([source, layers]) => {
+    const srcSpec = (style.sources[source] ?? {}) as Record<string, unknown>;
+    const m = meta?.[source] ?? ((srcSpec.metadata ?? {}) as { kind?: string; title?: string });
+    const kind = m.kind ?? (srcSpec.type === "raster" ? "satellite" : "street");
+    return { source, layers, kind, label: m.title ?? source };
+  });
+}
+
+/** Show only `source`'s layers. */
+export function showBasemap(map: MlMap, opts: BasemapOption[], source: string): void {
+  for (const o of opts) {
+    for (const id of o.layers) if (map.getLayer(id)) map.setLayoutProperty(id, "visibility", o.source === source ? "visible" : "none");
+  }
+}
+
+/** The switcher control: one radio per basemap, keyboard reachable, labelled by kind. */
+export function basemapSwitcher(opts: BasemapOption[], initial: string | null, onChange: (source: string) => void): HTMLElement {
+  const box = h("fieldset", { class: "basemap-switcher" }, h("legend", {}, "Basemap"));
+  if (opts.length === 0) box.append(h("p", { class: "muted" }, "none configured"));
+  for (const o of opts) {
+    const id = `basemap-${o.source}`;
+    const input = h("input", { type: "radio", name: "basemap", id, value: o.source, checked: o.source === initial });
+    input.addEventListener("change", () => input.checked && onChange(o.source));
+    box.append(h("label", { for: id, class: "radio" }, input, ` ${o.label} (${o.kind})`));
+  }
+  return box;
+}
+
+/** The source visible when the style loads (the first with a visible layer). */
+export function initialBasemap(style: StyleSpecification, opts: BasemapOption[]): string | null {
+  for (const o of opts) {
+    const visible = o.layers.some((id) => {
+      const l = style.layers.find((x) => x.id === id) as { layout?: { visibility?: string } } | undefined;
+      return (l?.layout?.visibility ?? "visible") === "visible";
+    });
+    if (visible) return o.source;
+  }
+  return opts[0]?.source ?? null;
+}

@@ -1,0 +1,63 @@
+/** The images panel: a keyframe's images (several cameras: step through them) with time and position. */
+import { api } from "../../api/endpoints";
+import type { Keyframe, LonLat } from "../../state/types";
+import { h } from "../dom";
+
+export class ImagesPanel {
+  readonly el: HTMLElement;
+  private kf: Keyframe | null = null;
+  private pos: LonLat = [0, 0];
+  private at = 0;
+  isOpen = false;
+
+  constructor() {
+    this.el = h("section", { class: "images-panel", "aria-label": "Images", "data-testid": "images-panel", hidden: true });
+  }
+
+  open(kf: Keyframe, pos: LonLat): void {
+    if (this.kf?.index !== kf.index) this.at = 0;
+    this.kf = kf;
+    this.pos = pos;
+    this.isOpen = true;
+    this.render();
+  }
+
+  close(): void {
+    this.isOpen = false;
+    this.el.hidden = true;
+  }
+
+  private step(d: number): void {
+    if (!this.kf || this.kf.images.length === 0) return;
+    const n = this.kf.images.length;
+    this.at = (this.at + d + n) % n;
+    this.render();
+  }
+
+  private render(): void {
+    const kf = this.kf;
+    if (!kf) return;
+    this.el.hidden = false;
+    const n = kf.images.length;
+    const head = h("div", { class: "row spread" },
+      h("h2", {}, `Images of keyframe #${kf.index}`),
+      h("button", { type: "button", "aria-label": "Close images", onclick: () => this.close() }, "×"));
+    const meta = h("p", { class: "muted", "data-testid": "image-meta" }, `t = ${kf.t_s.toFixed(2)} s · ${this.pos[1].toFixed(6)}, ${this.pos[0].toFixed(6)}`);
+    if (n === 0) {
+      this.el.replaceChildren(head, meta, h("p", {}, "No images for this keyframe."));
+      return;
+    }
+    const id = kf.images[this.at];
+    const img = h("img", { src: api.imageUrl(id), alt: `Camera image ${this.at + 1} of ${n} at keyframe ${kf.index}`, "data-testid": "image", loading: "eager" });
+    img.addEventListener("error", () => img.replaceWith(h("p", { class: "error" }, `Image ${id} could not be loaded.`)));
+    this.el.replaceChildren(
+      head,
+      h("a", { href: api.imageUrl(id), target: "_blank", rel: "noopener" }, img),
+      h("div", { class: "row" },
+        h("button", { type: "button", onclick: () => this.step(-1), disabled: n < 2, "aria-label": "Previous camera image" }, "‹"),
+        h("span", { "data-testid": "image-count" }, `Camera image ${this.at + 1} of ${n}`),
+        h("button", { type: "button", onclick: () => this.step(+1), disabled: n < 2, "aria-label": "Next camera image" }, "›")),
+      meta,
+    );
+  }
+}

@@ -1,0 +1,82 @@
+/** Small DOM panels of the correction view, each a pure function of editor state. */
+import { STATUS_COLORS, STATUS_LABELS } from "../../map/features";
+import { type EditorState, type KeyframeStatus, currentEdits, editCount, keyframeStatuses } from "../../state/editor";
+import { canRedo, canUndo, redoLabel, undoLabel } from "../../state/history";
+import { h } from "../dom";
+
+const ORDER: KeyframeStatus[] = ["adjustable", "fixed", "locked", "moved", "deleted", "flagged"];
+
+export function legend(s: EditorState): HTMLElement {
+  const counts = new Map<KeyframeStatus, number>();
+  for (const st of keyframeStatuses(s)) counts.set(st, (counts.get(st) ?? 0) + 1);
+  return h("div", { class: "legend", role: "group", "aria-label": "Legend" },
+    h("strong", {}, "Keyframes"),
+    h("ul", {}, ...ORDER.map((st) =>
+      h("li", { "data-status": st },
+        h("span", { class: "swatch", style: { background: STATUS_COLORS[st], opacity: st === "deleted" ? "0.5" : "1" } }),
+        `${STATUS_LABELS[st]} `, h("span", { class: "muted" }, String(counts.get(st) ?? 0)),
+      ),
+    )),
+    h("div", { class: "legend-line" }, h("span", { class: "line-swatch" }), "Corrected track (arrows: travel order)"),
+    s.showGhost ? h("div", { class: "legend-line" }, h("span", { class: "line-swatch ghost" }), "Loaded revision (ghost)") : null,
+  );
+}
+
+export function statusBar(s: EditorState): string {
+  if (!s.doc) return "Loading…";
+  const e = currentEdits(s);
+  const parts = [
+    `Revision ${s.doc.revision}`,
+    `${editCount(e)} unsaved edit${editCount(e) === 1 ? "" : "s"}`,
+    s.lastSolverTimeS === null ? "solver: —" : `last solver time ${(s.lastSolverTimeS * 1000).toFixed(0)} ms`,
+  ];
+  if (s.previewPending) parts.push("re-optimising…");
+  if (s.mode !== "browse") parts.push(`mode: ${s.mode}`);
+  const sub = s.submit;
+  if (sub.kind === "sending") parts.push("submitting…");
+  if (sub.kind === "waiting") parts.push(`correcting… ${Math.round(sub.progress * 100)}%`);
+  return parts.join(" · ");
+}
+
+export interface ToolbarState {
+  undo: { enabled: boolean; title: string };
+  redo: { enabled: boolean; title: string };
+  submitEnabled: boolean;
+  hasSelection: boolean;
+}
+
+export function toolbarState(s: EditorState): ToolbarState {
+  const busy = s.submit.kind === "sending" || s.submit.kind === "waiting";
+  return {
+    undo: { enabled: canUndo(s.history) && !busy, title: canUndo(s.history) ? `Undo: ${undoLabel(s.history)} (Ctrl+Z)` : "Nothing to undo" },
+    redo: { enabled: canRedo(s.history) && !busy, title: canRedo(s.history) ? `Redo: ${redoLabel(s.history)} (Ctrl+Shift+Z)` : "Nothing to redo" },
+    submitEnabled: !!s.doc && editCount(currentEdits(s)) > 0 && !busy && !s.conflict,
+    hasSelection: s.selected !== null,
+  };
+}
+
+export function selectionInfo(s: EditorState): HTMLElement {
+  if (!s.doc || s.selected === null) return h("p", { class: "muted" }, "Select a keyframe (click, or keys . and ,).");
+  const k = s.doc.keyframes[s.selected];
+  const st = keyframeStatuses(s)[s.selected];
+  const moved = currentEdits(s).moves.get(k.index);
+  const p = moved ?? k.lonlat;
+  return h("dl", { class: "kv", "data-testid": "selection-info" },
+    h("dt", {}, "Keyframe"), h("dd", {}, `#${k.index}`),
+    h("dt", {}, "Status"), h("dd", {}, STATUS_LABELS[st]),
+    h("dt", {}, "Time"), h("dd", {}, `${k.t_s.toFixed(2)} s`),
+    h("dt", {}, "Position"), h("dd", {}, `${p[1].toFixed(6)}, ${p[0].toFixed(6)}`),
+    h("dt", {}, "Heading"), h("dd", {}, `${k.heading_deg.toFixed(0)}°`),
+    h("dt", {}, "Images"), h("dd", {}, String(k.images.length)),
+  );
+}
+
+export function driftInfo(s: EditorState): HTMLElement {
+  const d = s.doc?.drift;
+  if (!d) return h("p", { class: "muted" }, "No drift estimate for this revision.");
+  return h("p", { "data-testid": "drift" },
+    d.offset_m !== null ? `Estimated GNSS drift ${d.offset_m.toFixed(1)} m` : "Drift estimated",
+    d.spread_m !== null ? ` (spread ${d.spread_m.toFixed(1)} m)` : "",
+    ".",
+  );
+}
