@@ -28,6 +28,7 @@ from posefix.basemap.tiling import mercator_to_lonlat_deg, tile_bounds_m, tile_s
 
 EXTENT = 4096  # integer grid of one vector tile (the MVT default)
 BUFFER_PX = 64  # tile-grid units kept beyond each edge
+SCREEN_TILE_PX = 512  # MapLibre draws a vector tile over 512 screen pixels
 OSM_ATTRIBUTION = "© OpenStreetMap contributors"
 BASEMAP_SCHEMA = "posefix-basemap-1"  # metadata marker: the style in posefix.basemap.style fits it
 
@@ -92,8 +93,9 @@ def clip_feature(feature: BasemapFeature, z: int, x: int, y: int) -> shapely.Geo
     parts = [part for part in shapely.get_parts(clipped_m) if part.geom_type in wanted and not part.is_empty]
     if not parts:
         return None
-    if feature.layer == "buildings" and sum(part.area for part in parts) < (2.0 * pixel_m) ** 2:
-        return None  # smaller than a 2x2 pixel square: noise at this zoom
+    screen_px_m = tile_size_m(z) / SCREEN_TILE_PX
+    if feature.layer == "buildings" and sum(part.area for part in parts) < (2.0 * screen_px_m) ** 2:
+        return None  # smaller than 2x2 screen pixels: noise at this zoom
     if len(parts) == 1:
         merged_m = parts[0]
     elif wanted is _POLYGON_TYPES:

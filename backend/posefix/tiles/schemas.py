@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from posefix.tiles.models import TileFormat, TileKind
 
@@ -27,6 +27,11 @@ class TileSourceCreate(BaseModel):
     path: str | None = Field(default=None, min_length=1, max_length=1000)
     url: str | None = Field(default=None, min_length=1, max_length=2000)
     tile_size: int = Field(default=256, description="256 or 512 pixels (raster tiles)")
+
+    @field_validator("format", mode="before")
+    @classmethod
+    def _format_alias(cls, value: object) -> object:
+        return "jpg" if isinstance(value, str) and value.lower() == "jpeg" else value
 
     @model_validator(mode="after")
     def _one_origin(self) -> TileSourceCreate:

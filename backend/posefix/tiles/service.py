@@ -39,6 +39,8 @@ class TileSettings(BaseSettings):
 
     # Upstream tiles younger than this are served from the disk cache without asking upstream.
     upstream_max_age_s: float = 7 * 86400.0
+    # Longest wait for one upstream tile (connecting takes at most 3 s of it).
+    upstream_timeout_s: float = 10.0
     # Browsers may reuse a served tile this long before revalidating with its ETag.
     browser_max_age_s: int = 3600
     # Empty: <data_dir>/tile-cache.
@@ -204,7 +206,7 @@ def open_store(settings: Settings, source: TileSource) -> MBTilesStore | PMTiles
     if source.url:
         tile_settings = TileSettings()
         return UpstreamStore(source.url, source.format, _cache_dir(settings, tile_settings, source),
-                             tile_settings.upstream_max_age_s)
+                             tile_settings.upstream_max_age_s, tile_settings.upstream_timeout_s)
     try:
         return open_tile_file(source_file_path(settings, source))
     except TileFileError as exc:

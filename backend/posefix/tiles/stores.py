@@ -315,8 +315,9 @@ class UpstreamStore:
     """
 
     def __init__(self, template: str, fmt: str, cache_dir: Path, max_age_s: float,
-                 client: httpx.Client | None = None):
+                 timeout_s: float = 10.0, client: httpx.Client | None = None):
         self.template = template
+        self.timeout = httpx.Timeout(timeout_s, connect=min(3.0, timeout_s))
         self.format = fmt
         self.encoding = None  # httpx undoes any transfer compression
         self.cache_dir = Path(cache_dir)
@@ -345,7 +346,7 @@ class UpstreamStore:
         url = upstream_url(self.template, z, x, y)
         host = httpx.URL(url).host
         try:
-            response = (self._client or shared_client()).get(url)
+            response = (self._client or shared_client()).get(url, timeout=self.timeout)
         except httpx.TimeoutException as exc:
             raise UpstreamError(f"tile server {host} did not answer in time ({type(exc).__name__})") from exc
         except httpx.HTTPError as exc:
