@@ -1,3 +1,319 @@
-"""Commands of the 'engine' area, registered on posefix.cli.app."""
+"""Commands of the 'engine' area: correct, evaluate, simulate, convert.
 
-from posefix.cli import app  # noqa: F401
+Registered on ``posefix.cli.app``. Heavy modules (numpy, pyarrow, scipy, the engine) are
+imported inside the commands so ``posefix --help`` and every other command stay quick.
+Bad input prints one line ``error: ...`` on stderr and exits with status 1; nothing is
+written (outputs go to temporary files renamed at the end).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+import warnings
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Optional
+
+import typer
+
+from posefix.cli import app
+
+EXIT_BAD_INPUT = 1
+
+FORMAT_HELP = "csv, gpx, geojson, tum, kitti or comma2k19"
+ORIGIN_HELP = (
+    "Origin of a TUM file's local ENU frame as 'lat,lon,alt' (degrees, degrees, metres above "
+    "the WGS84 ellipsoid). Needed to read TUM; for writing TUM the default is the first sample."
+)
+
+
+class CommandError(Exception):
+    """A user-facing failure: printed as one line, exit status 1."""
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(EXIT_BAD_INPUT)
+
+
+@contextmanager
+def _user_errors() -> Iterator[None]:
+    """Turn every expected failure into one line on stderr and a non-zero exit.
+
+    Warnings (e.g. an orientation derived from the track) are printed as one line each.
+    """
+    from posefix.io.errors import RunFormatError
+
+    def show_warning(message, category, filename, lineno, file=None, line=None):
+        typer.echo(f"warning: {message}", err=True)
+
+    old = warnings.showwarning
+    warnings.showwarning = show_warning
+    try:
+        yield
+    except typer.Exit:
+        raise
+    except (RunFormatError, CommandError) as exc:
+        _fail(str(exc))
+    except KeyboardInterrupt:
+        _fail("interrupted; nothing written")
+    except (ValueError, OSError) as exc:  # engine refusals, config errors, unreadable files
+        _fail(f"{type(exc).__name__}: {exc}" if type(exc).__name__ not in ("ValueError",) else str(exc))
+    finally:
+        warnings.showwarning = old
+
+
+def _parse_origin(text: Optional[str]):
+    if text is None:
+        return None
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) not in (2, 3):
+        raise CommandError(f"--origin: expected 'lat,lon,alt', got {text!r}")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise CommandError(f"--origin: not numbers: {text!r}") from None
+    from posefix.core.geodesy import as_origin
+
+    try:
+        return as_origin(vals)
+    except ValueError as exc:
+        raise CommandError(f"--origin: {exc}") from None
+
+
+class _Steps:
+    """A tqdm bar over named steps of a command (shown on a terminal only)."""
+
+    def __init__(self, names: list[str], quiet: bool):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=len(names), disable=quiet or not sys.stderr.isatty(), unit="step",
+                        leave=False, file=sys.stderr, bar_format="{desc}: {n_fmt}/{total_fmt} {bar} {elapsed}")
+
+    def __call__(self, name: str) -> None:
+        self.bar.set_description_str(name)
+
+    def done(self) -> None:
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _check_output_path(path: Path, inputs: list[Path]) -> None:
+    if not path.parent.exists():
+        raise CommandError(f"{path}: output folder {str(path.parent)!r} does not exist")
+    for p in inputs:
+        try:
+            if path.exists() and path.resolve() == p.resolve():
+                raise CommandError(f"{path}: output would overwrite an input")
+        except OSError:
+            pass
+
+
+# --------------------------------------------------------------------------- correct
+
+
+@app.command("correct")
+def correct_command(
+    run_path: Path = typer.Argument(..., metavar="RUN", help=f"Pose run to correct: a file or folder ({FORMAT_HELP}); format from the extension/layout unless --input-format."),
+    edits_path: Optional[Path] = typer.Option(None, "--edits", "-e", metavar="EDITS.json", help='Operator edits: {"edits": [{"t": s, "lat": deg, "lon": deg, "alt": m (optional)}], "deleted": [t, ...]}; each t names a sample to the millisecond. Omit for no edits.'),
+    output: Path = typer.Option(..., "--output", "-o", metavar="OUT", help="Corrected run: every input sample in input order, other columns kept. Format from the extension (.csv, .gpx, .geojson, .tum) unless --format."),
+    config: Optional[Path] = typer.Option(None, "--config", "-c", metavar="FILE", help="TOML file overriding engine settings (strengths in metres/radians, loss, drift, solver); defaults documented in posefix/core/default_config.toml."),
+    keyframes_every_s: Optional[float] = typer.Option(None, "--keyframes-every-s", metavar="S", help="One keyframe every S seconds (default from config: 1 s). Edited samples are always keyframes."),
+    keyframes_every_m: Optional[float] = typer.Option(None, "--keyframes-every-m", metavar="M", help="One keyframe every M metres travelled (instead of every S seconds)."),
+    fmt: Optional[str] = typer.Option(None, "--format", "-f", help="Output format: csv, gpx, geojson or tum (default: from OUT's extension)."),
+    input_format: Optional[str] = typer.Option(None, "--input-format", help=f"Input format ({FORMAT_HELP}); default from RUN's extension or folder layout."),
+    origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
+) -> None:
+    """Correct a pose run from operator edits: optimise keyframes, propagate to every sample."""
+    with _user_errors():
+        t_start = time.perf_counter()
+        if keyframes_every_s is not None and keyframes_every_m is not None:
+            raise CommandError("give either --keyframes-every-s or --keyframes-every-m, not both")
+        for name, val in (("--keyframes-every-s", keyframes_every_s), ("--keyframes-every-m", keyframes_every_m)):
+            if val is not None and not val > 0:
+                raise CommandError(f"{name} must be a positive number, got {val}")
+        o = _parse_origin(origin)
+        from posefix.io import detect_format, read_edits, read_run, write_run
+
+        out_fmt = fmt or detect_format(output, for_writing=True)
+        _check_output_path(output, [run_path] + ([edits_path] if edits_path else []))
+        steps = _Steps(["read", "edits", "correct", "write"], quiet)
+        steps("reading run")
+        run = read_run(run_path, fmt=input_format, origin=o)
+        steps.done()
+        steps("reading edits")
+        from posefix.io.edits import EditSet
+
+        edits = read_edits(edits_path) if edits_path is not None else EditSet()
+        cfg = _load_config(config, keyframes_every_s, keyframes_every_m)
+        steps.done()
+        steps("optimising")
+        from posefix.engine import correct
+
+        result = correct(run, edits, cfg)
+        steps.done()
+        steps("writing")
+        write_run(result.run, output, fmt=out_fmt, origin=o)
+        steps.done()
+        steps.close()
+        if not quiet:
+            _print_correction_summary(run, edits, result, output, time.perf_counter() - t_start)
+
+
+def _load_config(config: Optional[Path], every_s: Optional[float], every_m: Optional[float]):
+    import dataclasses
+
+    from posefix.engine import CorrectionConfig
+
+    cfg = CorrectionConfig.load(config) if config is not None else CorrectionConfig()
+    if every_s is not None:
+        cfg = dataclasses.replace(cfg, keyframes=dataclasses.replace(cfg.keyframes, every_s=every_s, every_m=0.0))
+    if every_m is not None:
+        cfg = dataclasses.replace(cfg, keyframes=dataclasses.replace(cfg.keyframes, every_m=every_m))
+    return cfg
+
+
+def _print_correction_summary(run, edits, result, output: Path, elapsed_s: float) -> None:
+    s = result.solver
+    k = len(result.keyframes.index)
+    status = getattr(s, "status", "?")
+    message = getattr(s, "message", "")
+    iters = getattr(s, "iterations", "?")
+    typer.echo(
+        f"corrected {run.n} samples ({k} keyframes, {len(edits.moves)} moves, {len(edits.deleted)} deleted) "
+        f"-> {output} in {elapsed_s:.2f} s"
+    )
+    typer.echo(f"solver: {status} after {iters} iterations: {message}")
+    drift = result.drift
+    off = getattr(drift, "offset_enu_m", None)
+    spread = getattr(drift, "spread_m", None)
+    if off is not None:
+        import numpy as np
+
+        off = np.asarray(off, dtype=float).reshape(-1)
+        if off.size >= 2 and np.all(np.isfinite(off[:2])):
+            sp = f", spread {float(spread):.2f} m" if spread is not None and np.isfinite(spread) else ""
+            typer.echo(f"drift implied by the edits: east {off[0]:+.2f} m, north {off[1]:+.2f} m{sp}")
+    for flag in getattr(result, "flags", []) or []:
+        typer.echo(f"flagged: keyframe {flag.index}: {flag.reason}: {flag.message}")
+
+
+# --------------------------------------------------------------------------- evaluate
+
+
+@app.command("evaluate")
+def evaluate_command(
+    truth_path: Path = typer.Argument(..., metavar="TRUTH", help=f"Ground-truth run ({FORMAT_HELP})."),
+    run_path: Path = typer.Argument(..., metavar="RUN", help="Run to measure; its samples are compared with TRUTH interpolated at RUN's times."),
+    as_json: bool = typer.Option(False, "--json", help="Print the metrics as JSON (metres) instead of a table."),
+    origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
+) -> None:
+    """Horizontal and 3-D position error of RUN against TRUTH: RMSE, mean, median, 95th percentile, max (metres)."""
+    with _user_errors():
+        o = _parse_origin(origin)
+        from posefix.core.evaluate import evaluate
+        from posefix.io import read_run
+
+        truth = read_run(truth_path, origin=o)
+        run = read_run(run_path, origin=o)
+        ev = evaluate(truth, run)
+        if as_json:
+            typer.echo(json.dumps(ev.to_dict(), indent=2))
+            return
+        typer.echo(f"{'error (m)':<12}{'rmse':>10}{'mean':>10}{'median':>10}{'p95':>10}{'max':>10}")
+        for name, st in (("horizontal", ev.horizontal), ("3-D", ev.three_d)):
+            typer.echo(f"{name:<12}{st.rmse_m:>10.3f}{st.mean_m:>10.3f}{st.median_m:>10.3f}{st.p95_m:>10.3f}{st.max_m:>10.3f}")
+        extra = f"; {ev.n_outside} outside the truth's time span, not measured" if ev.n_outside else ""
+        typer.echo(f"samples compared: {ev.n_compared}{extra}")
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+@app.command("simulate")
+def simulate_command(
+    out: Path = typer.Option(..., "--out", metavar="DIR", help="Folder to write run.csv (reported poses + raw GNSS), truth.csv and edits.json into (created if missing)."),
+    duration_s: float = typer.Option(600.0, "--duration-s", min=1.0, help="Length of the drive, seconds."),
+    rate_hz: float = typer.Option(100.0, "--rate-hz", min=0.1, help="Pose sample rate, Hz."),
+    edit_every_s: float = typer.Option(100.0, "--edit-every-s", min=0.0, help="One edit (true position + click noise) every this many seconds, at the middle of each interval; 0 for none."),
+    seed: int = typer.Option(1, "--seed", help="Random seed: the same options give the same drive."),
+    regime: str = typer.Option("mixed", "--regime", help="GNSS error regime: white (noise), drift (pose bias moving a few cm/s, raw GNSS beside), canyon (offset jumps of 5-20 m for minutes), outliers (50 m bursts), mixed (canyon + outliers + drift)."),
+    osm: Optional[Path] = typer.Option(None, "--osm", metavar="FILE.pbf", help="Drive along the streets of this OpenStreetMap extract (e.g. ../shared/data/osm/helsinki.osm.pbf)."),
+    click_noise_m: float = typer.Option(0.5, "--click-noise-m", min=0.0, help="Operator click error of each edit, metres (1 sigma per horizontal axis)."),
+    gnss_rate_hz: float = typer.Option(10.0, "--gnss-rate-hz", min=0.01, help="Raw GNSS fix rate, Hz (held between fixes)."),
+    no_gnss_columns: bool = typer.Option(False, "--no-gnss-columns", help="Leave the raw GNSS columns out of run.csv (the location term then uses the reported pose)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
+) -> None:
+    """Simulate a drive with ground truth: writes DIR/run.csv, DIR/truth.csv and DIR/edits.json."""
+    with _user_errors():
+        from posefix.core.simulate import REGIMES, simulate
+
+        if regime not in REGIMES:
+            raise CommandError(f"--regime: unknown regime {regime!r} (known: {', '.join(REGIMES)})")
+        if osm is not None and not osm.is_file():
+            raise CommandError(f"--osm: {osm}: no such file")
+        if out.exists() and not out.is_dir():
+            raise CommandError(f"--out: {out} exists and is not a folder")
+        steps = _Steps(["simulate", "write run", "write truth", "write edits"], quiet)
+        sim = simulate(
+            duration_s=duration_s, rate_hz=rate_hz, edit_every_s=edit_every_s, seed=seed, regime=regime,
+            osm_path=None if osm is None else str(osm), gnss_columns=not no_gnss_columns,
+            gnss_rate_hz=gnss_rate_hz, click_noise_m=click_noise_m, progress=steps,
+        )
+        steps.done()
+        from posefix.io import EditSet, Move, write_edits, write_run
+
+        out.mkdir(parents=True, exist_ok=True)
+        steps("writing run.csv")
+        write_run(sim.run, out / "run.csv")
+        steps.done()
+        steps("writing truth.csv")
+        write_run(sim.truth, out / "truth.csv")
+        steps.done()
+        steps("writing edits.json")
+        edits = EditSet(moves=[Move(e.t_s, e.lat_deg, e.lon_deg) for e in sim.edits])
+        write_edits(edits, out / "edits.json")
+        steps.done()
+        steps.close()
+        if not quiet:
+            info = sim.info
+            typer.echo(
+                f"simulated {sim.run.n} samples ({duration_s:g} s at {rate_hz:g} Hz, regime {regime}, "
+                f"{info['path_length_m'] / 1000:.1f} km, mean speed {info['mean_speed_mps']:.1f} m/s, "
+                f"{len(sim.edits)} edits) -> {out}/run.csv, truth.csv, edits.json"
+            )
+            typer.echo(
+                f"reported pose error (horizontal RMS) {info['pose_error_rms_m']:.2f} m; "
+                f"raw GNSS {info['gnss_error_rms_m']:.2f} m"
+            )
+
+
+# --------------------------------------------------------------------------- convert
+
+
+@app.command("convert")
+def convert_command(
+    input_path: Path = typer.Argument(..., metavar="IN", help=f"Run to read: a file or folder ({FORMAT_HELP})."),
+    output_path: Path = typer.Argument(..., metavar="OUT", help="File to write (.csv, .gpx, .geojson, .tum)."),
+    origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
+    input_format: Optional[str] = typer.Option(None, "--from", help=f"Input format ({FORMAT_HELP}); default from IN."),
+    output_format: Optional[str] = typer.Option(None, "--to", help="Output format (csv, gpx, geojson, tum); default from OUT's extension."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
+) -> None:
+    """Convert a pose run between formats (orientation derived from the track when IN has none)."""
+    with _user_errors():
+        o = _parse_origin(origin)
+        from posefix.io import detect_format, read_run, write_run
+
+        out_fmt = output_format or detect_format(output_path, for_writing=True)
+        _check_output_path(output_path, [input_path])
+        run = read_run(input_path, fmt=input_format, origin=o)
+        write_run(run, output_path, fmt=out_fmt, origin=o)
+        if not quiet:
+            derived = " (orientation derived from the track)" if run.orientation_derived else ""
+            typer.echo(f"converted {run.n} samples -> {output_path} ({out_fmt}){derived}")
