@@ -1,37 +1,12 @@
 /** One function per API route the front end uses. */
 import type { Edits, LonLat, RunDoc } from "../state/types";
-import { request } from "./client";
+import { type Schemas, client, request, unwrap } from "./client";
 import { docFromKeyframes, editsBody } from "./convert";
 
-export interface UserPublic {
-  id: number | string;
-  username: string;
-  role: string;
-}
-
-export interface RunSummary {
-  id: number | string;
-  name: string;
-  status: string;
-  revision?: number;
-  created_at?: string;
-  updated_at?: string;
-  n_keyframes?: number;
-  [k: string]: unknown;
-}
-
-export interface TileSource {
-  id: number;
-  name: string;
-  title: string;
-  kind: string;
-  attribution: string;
-  min_zoom: number;
-  max_zoom: number;
-  format: string;
-  origin: string;
-  tile_url: string;
-}
+export type UserPublic = Schemas["UserPublic"];
+export type RunSummary = Schemas["RunPublic"];
+export type TileSource = Schemas["TileSourcePublic"];
+export type ImagePublic = Schemas["ImagePublic"];
 
 export interface PreviewResult {
   positions: LonLat[];
@@ -41,22 +16,21 @@ export interface PreviewResult {
 }
 
 export const api = {
-  login: (username: string, password: string) => request<UserPublic>("POST", "/auth/login", { username, password }),
-  logout: () => request<unknown>("POST", "/auth/logout", {}),
-  me: () => request<UserPublic>("GET", "/auth/me"),
+  login: (username: string, password: string) => unwrap(client.POST("/api/v1/auth/login", { body: { username, password } })),
+  logout: () => unwrap(client.POST("/api/v1/auth/logout", {})),
+  me: () => unwrap(client.GET("/api/v1/auth/me")),
 
-  listRuns: (params: Record<string, string | number | undefined> = {}) => {
-    const q = new URLSearchParams();
-    for (const [k, v] of Object.entries(params)) if (v !== undefined && v !== "") q.set(k, String(v));
-    const qs = q.toString();
-    return request<{ items: RunSummary[]; total: number }>("GET", `/runs${qs ? `?${qs}` : ""}`);
-  },
-  getRun: (id: string) => request<RunSummary>("GET", `/runs/${encodeURIComponent(id)}`),
+  listRuns: (query: { limit?: number; offset?: number; name?: string; status?: string } = {}) =>
+    unwrap(client.GET("/api/v1/runs", { params: { query: query as never } })),
+  getRun: (id: string) => unwrap(client.GET("/api/v1/runs/{run_id}", { params: { path: { run_id: Number(id) } } })),
+  runImages: (id: string) => unwrap(client.GET("/api/v1/runs/{run_id}/images", { params: { path: { run_id: Number(id) } } })),
 
   async loadDoc(id: string, revision?: number): Promise<RunDoc> {
     const run = await api.getRun(id);
-    const fc = await request<Record<string, unknown>>("GET", `/runs/${encodeURIComponent(id)}/keyframes${revision !== undefined ? `?revision=${revision}` : ""}`);
-    return docFromKeyframes(id, String(run.name ?? id), fc);
+    const fc = await unwrap(
+      client.GET("/api/v1/runs/{run_id}/keyframes", { params: { path: { run_id: Number(id) }, query: revision === undefined ? {} : { revision } }, parseAs: "json" }),
+    );
+    return docFromKeyframes(id, run.name, fc as Record<string, unknown>);
   },
 
   async preview(id: string, baseRevision: number, edits: Edits, signal?: AbortSignal): Promise<PreviewResult> {
@@ -75,12 +49,12 @@ export const api = {
   submitEdits: (id: string, baseRevision: number, edits: Edits, comment: string) =>
     request<{ batch_id: number | string; job_id: number | string }>("POST", `/runs/${encodeURIComponent(id)}/edits`, { base_revision: baseRevision, ...editsBody(edits), comment }, { "If-Match": `"${baseRevision}"` }),
 
-  getJob: (id: string | number) => request<{ status: string; progress?: number; error?: string | null; [k: string]: unknown }>("GET", `/jobs/${encodeURIComponent(String(id))}`),
+  getJob: (id: string | number) => unwrap(client.GET("/api/v1/jobs/{job_id}", { params: { path: { job_id: Number(id) } } })),
   listRevisions: (id: string) => request<unknown>("GET", `/runs/${encodeURIComponent(id)}/revisions`),
 
-  listTileSources: () => request<{ items: TileSource[]; total: number }>("GET", "/tile-sources"),
-  addTileSource: (body: Record<string, unknown>) => request<TileSource>("POST", "/tile-sources", body),
-  deleteTileSource: (id: number | string) => request<unknown>("DELETE", `/tile-sources/${encodeURIComponent(String(id))}`),
+  listTileSources: () => unwrap(client.GET("/api/v1/tile-sources")),
+  addTileSource: (body: Schemas["TileSourceCreate"]) => unwrap(client.POST("/api/v1/tile-sources", { body })),
+  deleteTileSource: (ref: string) => unwrap(client.DELETE("/api/v1/tile-sources/{ref}", { params: { path: { ref } } })),
   styleUrl: () => `${location.origin}/api/v1/map/style.json`,
   imageUrl: (id: string) => `/api/v1/images/${encodeURIComponent(id)}`,
   thumbnailUrl: (id: string) => `/api/v1/images/${encodeURIComponent(id)}/thumbnail`,

@@ -1,4 +1,5 @@
 /** Admin: list registered tile sources and add one (a tile file on the server, or an XYZ URL). */
+import type { Schemas } from "../api/client";
 import { api } from "../api/endpoints";
 import { describeError } from "../api/errors";
 import type { AppContext } from "./app";
@@ -27,9 +28,10 @@ export function renderAdminTiles(main: HTMLElement, _ctx: AppContext): void {
   );
   form.addEventListener("submit", async (e) => {
     e.preventDefault();
-    const body: Record<string, unknown> = { name: name.value, kind: kind.value, attribution: attribution.value };
+    const body: Schemas["TileSourceCreate"] = { name: name.value, kind: kind.value as Schemas["TileSourceCreate"]["kind"], attribution: attribution.value, tile_size: 256 };
     if (title.value) body.title = title.value;
-    body[origin.value] = location_.value;
+    if (origin.value === "url") body.url = location_.value;
+    else body.path = location_.value;
     try {
       const ts = await api.addTileSource(body);
       msg.textContent = `Added ${ts.name}.`;
@@ -57,7 +59,7 @@ export function renderAdminTiles(main: HTMLElement, _ctx: AppContext): void {
                       onclick: async () => {
                         if (!confirm(`Remove tile source ${t.name}?`)) return;
                         try {
-                          await api.deleteTileSource(t.id);
+                          await api.deleteTileSource(t.name);
                           load();
                         } catch (err) {
                           msg.textContent = describeError(err);

@@ -171,7 +171,7 @@ export class EditorController {
         const status = String(job.status);
         if (["done", "succeeded", "success", "completed", "complete"].includes(status)) break;
         if (["failed", "dead", "error", "cancelled"].includes(status)) {
-          throw new Error(`the correction job ${status}${job.error ? `: ${job.error}` : ""}`);
+          throw new Error(`the correction job ${status}${job.last_error ? `: ${job.last_error}` : ""}`);
         }
         this.store.update((x) => ({ ...x, submit: { kind: "waiting", jobId, progress: Number(job.progress ?? 0) } }));
         if (Date.now() - t0 > JOB_TIMEOUT_MS) throw new Error("the correction job is taking long; your edits were received, reload later");
