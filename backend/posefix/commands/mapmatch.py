@@ -1,3 +1,192 @@
-"""Commands of the 'mapmatch' area, registered on posefix.cli.app."""
+"""``posefix mapmatch``: build, fingerprints, train, track, evaluate (CRF map matching).
 
-from posefix.cli import app  # noqa: F401
+Heavy modules are imported inside the commands so ``posefix --help`` stays quick. Bad
+input prints one line ``error: ...`` on stderr and exits with status 1; outputs are
+written to a temporary file and renamed at the end, so a failure leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, List, Optional
+
+import typer
+
+from posefix.cli import app
+
+mm = typer.Typer(
+    name="mapmatch",
+    help="Map matching with a conditional random field (MapCraft): indoor walks on floor plans.",
+    no_args_is_help=True,
+)
+app.add_typer(mm, name="mapmatch")
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(1)
+
+
+@contextmanager
+def _user_errors() -> Iterator[None]:
+    try:
+        yield
+    except typer.Exit:
+        raise
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+
+
+@contextmanager
+def _atomic(path: Path, suffix: str) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename onto it only on success."""
+    path.parent.mkdir(parents=True, exist_ok=True) if path.parent != Path("") else None
+    fd, tmp = tempfile.mkstemp(prefix=".posefix-", suffix=suffix, dir=str(path.parent or "."))
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _parse_xy(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise typer.BadParameter(f"expected 'X,Y' in metres (floor frame), got {text!r}")
+    return x, y
+
+
+@mm.command("build")
+def build(
+    floor: Path = typer.Option(..., "--floor", help="Competition floor directory (floor_info.json, geojson_map.json)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Model file to write (.npz)."),
+    cell_m: float = typer.Option(0.8, "--cell-m", help="Cell size, metres."),
+    reach_m: float = typer.Option(1.7, "--reach-m", help="Longest single-step transition, metres."),
+    raster_m: float = typer.Option(0.1, "--raster-m", help="Resolution of the wall/walkable raster, metres."),
+    min_component_m2: float = typer.Option(20.0, "--min-component-m2", help="Drop connected areas smaller than this, m²."),
+    shops_walkable: bool = typer.Option(False, "--shops-walkable/--shops-blocked", help="Let tracks enter shop polygons (no door data)."),
+) -> None:
+    """Build a floor graph (one vertex per walkable cell) and save the model."""
+    with _user_errors():
+        from posefix.mapmatch.api import build_model
+        from posefix.mapmatch.model import save_model
+
+        t0 = time.perf_counter()
+        model = build_model(floor, cell_m=cell_m, reach_m=reach_m, raster_m=raster_m,
+                            min_component_m2=min_component_m2, shops_walkable=shops_walkable)
+        dt = time.perf_counter() - t0
+        with _atomic(output, ".npz") as tmp:
+            size = save_model(model, tmp)
+        g = model.graph
+        typer.echo(f"model: {g.n_vertices} vertices, {g.indices.size // 2} edges, {g.offsets.shape[0]} step moves; "
+                   f"{size / 1024:.1f} KiB; built in {dt:.2f} s -> {output}")
+
+
+@mm.command("fingerprints")
+def fingerprints(
+    floor: Path = typer.Option(..., "--floor", help="Floor directory (checked to exist; positions are in its frame)."),
+    walks: List[Path] = typer.Option(..., "--walks", help="Walk files with TYPE_WAYPOINT lines (repeat the option)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Fingerprint file to write (.npz)."),
+) -> None:
+    """Build a WiFi fingerprint map (f3) and access-point peaks (f4) from surveyed walks."""
+    with _user_errors():
+        from tqdm import tqdm
+
+        from posefix.mapmatch.fingerprints import build_fingerprints, save_fingerprints
+        from posefix.mapmatch.sensors import read_walk
+
+        if not Path(floor).is_dir():
+            raise ValueError(f"{floor}:0: field --floor: not a directory")
+        ws = [read_walk(w) for w in tqdm(walks, desc="reading walks", unit="walk")]
+        fp = build_fingerprints(ws)
+        with _atomic(output, ".npz") as tmp:
+            size = save_fingerprints(fp, tmp)
+        typer.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points, "
+                   f"{len(fp.peak_xy_m)} peaks; {size / 1024:.1f} KiB -> {output}")
+
+
+@mm.command("train")
+def train(
+    model_path: Path = typer.Option(..., "--model", help="Model file from 'build'."),
+    walks: List[Path] = typer.Option(..., "--walks", help="Walk files with TYPE_WAYPOINT lines (repeat the option)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Trained model file to write."),
+    heading_bias: bool = typer.Option(True, "--heading-bias/--no-heading-bias", help="Learn the sensor-to-floor heading bias (rad)."),
+    step_em: bool = typer.Option(False, "--step-em/--no-step-em", help="Learn the step constant gamma (m) by hard EM."),
+    weights: bool = typer.Option(True, "--weights/--no-weights", help="Learn the weights of f1, f2 by conditional likelihood."),
+) -> None:
+    """Learn heading bias, step constants and feature weights from surveyed walks.
+
+    Each walk starts at its first waypoint; the waypoints clamp the likelihood (within 2 m).
+    """
+    with _user_errors():
+        from tqdm import tqdm
+
+        from posefix.mapmatch.api import train_model
+        from posefix.mapmatch.model import load_model, save_model
+        from posefix.mapmatch.sensors import read_walk
+
+        model = load_model(model_path)
+        ws = [read_walk(w) for w in tqdm(walks, desc="reading walks", unit="walk")]
+        bar = tqdm(total=3, desc="training", unit="stage")
+        model2, report = train_model(model, ws, heading_bias=heading_bias, step_em=step_em, weights=weights,
+                                     progress=lambda: bar.update(1))
+        bar.close()
+        with _atomic(output, ".npz") as tmp:
+            size = save_model(model2, tmp)
+        for k, v in report.items():
+            typer.echo(f"{k}: {v}")
+        typer.echo(f"model: {size / 1024:.1f} KiB -> {output}")
+
+
+@mm.command("track")
+def track(
+    walk: Path = typer.Argument(..., help="Walk file (competition path format); waypoints are not read."),
+    model_path: Path = typer.Option(..., "--model", help="Model file."),
+    output: Path = typer.Option(..., "--output", "-o", help="TRACK.csv: t (unix ms), x, y (m), lat, lon, sigma_major_m, sigma_minor_m, angle_deg."),
+    fingerprints: Optional[Path] = typer.Option(None, "--fingerprints", help="Fingerprint file (adds f3/f4)."),
+    start: Optional[str] = typer.Option(None, "--start", help="Known start 'X,Y' in metres (floor frame); default: unknown (uniform)."),
+    heading: str = typer.Option("rotation_vector", "--heading", help="Heading source: rotation_vector or gyro_mag."),
+) -> None:
+    """Track a walk: offline Viterbi path, one row per step, with the 1σ error ellipse."""
+    with _user_errors():
+        import numpy as np
+
+        from posefix.mapmatch.api import track_walk_file, write_track_csv
+        from posefix.mapmatch.fingerprints import load_fingerprints
+        from posefix.mapmatch.model import load_model
+
+        model = load_model(model_path)
+        fp = load_fingerprints(fingerprints) if fingerprints else None
+        xy = _parse_xy(start) if start else None
+        res = track_walk_file(model, walk, start_xy_m=xy, fingerprints=fp, heading=heading)
+        with _atomic(output, ".csv") as tmp:
+            write_track_csv(tmp, res, model.graph.georef)
+        typer.echo(f"track: {res.t_ms.size} rows, {1000 * res.time_per_step_s:.2f} ms/step, "
+                   f"median 1σ {float(np.median(res.sigma_major_m)):.2f} m -> {output}")
+
+
+@mm.command("evaluate")
+def evaluate(
+    walk: Path = typer.Argument(..., help="Walk file with TYPE_WAYPOINT lines (the truth)."),
+    track_csv: Path = typer.Argument(..., help="TRACK.csv from 'track'."),
+    skip_first: bool = typer.Option(False, "--skip-first", help="Leave out the first waypoint (when it was the given start)."),
+) -> None:
+    """Error (m) at the waypoints, and at every row against the straight-line truth."""
+    with _user_errors():
+        from posefix.mapmatch.api import read_track_csv
+        from posefix.mapmatch.evaluate import evaluate_track, summarise
+        from posefix.mapmatch.sensors import read_walk
+
+        w = read_walk(walk)
+        t, p = read_track_csv(track_csv)
+        e = evaluate_track(w.waypoints, t, p, skip_first=skip_first)
+        for name, arr in (("waypoints", e.err_wp_m), ("steps", e.err_steps_m)):
+            s = summarise([arr])
+            typer.echo(f"{name}: n={s['n']} mean={s['mean_m']:.2f} m median={s['median_m']:.2f} m p95={s['p95_m']:.2f} m")

@@ -155,8 +155,6 @@ class ViterbiFilter:
         n = t_n if last_n is None else min(last_n, t_n)
         out = np.empty(n + 1, dtype=np.int64)
         out[n] = v
-        succ_off = self.graph.offsets
-        grid = None
         for i in range(n):
             k = int(self.back[t_n - 1 - i][v])
             if k < 0:
@@ -164,7 +162,6 @@ class ViterbiFilter:
             u = int(self.graph.pred[v, k])
             v = u
             out[n - 1 - i] = v
-        del succ_off, grid
         return out
 
 
@@ -194,29 +191,41 @@ class ForwardBackward:
 def forward_backward(graph: GridGraph, log_prior: np.ndarray, trans: np.ndarray,
                      state: list[np.ndarray | None] | None = None,
                      beam: float | None = DEFAULT_BEAM) -> ForwardBackward:
-    """Forward-backward in log space (module docstring); dense over vertices per step."""
+    """Forward-backward in log space (module docstring).
+
+    Only the beam's support is computed: α_t on the vertices reachable from the previous
+    support, β_t on the support of α_t (elsewhere γ_t = 0 anyway), so a walk with a known
+    start costs O(active·K) per step rather than O(V·K).
+    """
     t_n, k_n = trans.shape
     v_n = graph.n_vertices
     pred, succ = graph.pred, graph.succ
-    st = [np.zeros(v_n) if (state is None or state[t] is None) else state[t] for t in range(t_n)]
-    alpha = np.empty((t_n + 1, v_n))
+    alpha = np.full((t_n + 1, v_n), NEG_INF)
     alpha[0] = _prune(np.asarray(log_prior, dtype=float), beam)
     for t in range(t_n):
-        m = _ext(alpha[t])[pred] + trans[t][None, :]
-        a = logsumexp(m, axis=1) + st[t]
-        alpha[t + 1] = _prune(a, beam)
-    fin = alpha[t_n][np.isfinite(alpha[t_n])]
-    if fin.size == 0:
-        raise ValueError("no path is consistent with the observations (all states pruned)")
-    log_z = float(logsumexp(fin))
-    beta = np.empty((t_n + 1, v_n))
-    beta[t_n] = 0.0
+        active = np.nonzero(np.isfinite(alpha[t]))[0]
+        cand = _candidates(graph, active)
+        m = _ext(alpha[t])[pred[cand]] + trans[t][None, :]
+        with np.errstate(invalid="ignore"):
+            a = logsumexp(m, axis=1)
+        if state is not None and state[t] is not None:
+            a = a + state[t][cand]
+        row = np.full(v_n, NEG_INF)
+        row[cand] = a
+        if not np.any(np.isfinite(row)):
+            raise ValueError(f"no path is consistent with the observations at step {t}")
+        alpha[t + 1] = _prune(row, beam)
+    log_z = float(logsumexp(alpha[t_n][np.isfinite(alpha[t_n])]))
+    beta = np.full((t_n + 1, v_n), NEG_INF)
+    beta[t_n] = np.where(np.isfinite(alpha[t_n]), 0.0, NEG_INF)
     xi_k = np.zeros((t_n, k_n))
     for t in range(t_n - 1, -1, -1):
-        nxt = _ext(beta[t + 1] + st[t])[succ] + trans[t][None, :]  # (V, K), over u
-        beta[t] = logsumexp(nxt, axis=1)
-        joint = alpha[t][:, None] + nxt - log_z
+        sup = np.nonzero(np.isfinite(alpha[t]))[0]
+        nb = beta[t + 1] if (state is None or state[t] is None) else beta[t + 1] + state[t]
+        nxt = _ext(nb)[succ[sup]] + trans[t][None, :]  # (S, K)
         with np.errstate(invalid="ignore"):
+            beta[t, sup] = logsumexp(nxt, axis=1)
+            joint = alpha[t, sup][:, None] + nxt - log_z
             xi_k[t] = np.exp(logsumexp(joint, axis=0))
     with np.errstate(invalid="ignore"):
         g = alpha + beta - log_z

@@ -1,0 +1,116 @@
+"""The map-matching Python API used by the CLI, the server and notebooks.
+
+    from posefix.mapmatch import build_model, load_model, save_model, Tracker, track_walk
+    model = build_model("../shared/data/indoor-site1-F1")          # Model
+    tr = Tracker(model, start_xy_m=(81.3, 93.3))                   # online
+    point = tr.step(step_xy_m, t_ms)                               # TrackPoint (vertex, Gaussian summary)
+    result = track_walk(model, read_walk("walk.txt"), start_xy_m=None)   # TrackResult, offline
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from posefix.mapmatch.floorplan import GeoRef, load_ilc_floor
+from posefix.mapmatch.graph import build_graph
+from posefix.mapmatch.model import Model
+from posefix.mapmatch.sensors import Walk, read_walk, steps_from_walk
+from posefix.mapmatch.tracker import TrackResult, track_walk
+
+__all__ = ["build_model", "train_model", "track_walk_file", "write_track_csv", "read_track_csv"]
+
+TRACK_COLUMNS = ["t", "x", "y", "lat", "lon", "sigma_major_m", "sigma_minor_m", "angle_deg"]
+
+
+def build_model(floor_dir: str | Path, cell_m: float = 0.8, reach_m: float = 1.7, raster_m: float = 0.1,
+                min_component_m2: float = 20.0, shops_walkable: bool = False) -> Model:
+    """Model of a competition floor directory with default (untrained) parameters."""
+    raster = load_ilc_floor(floor_dir, res_m=raster_m, shops_walkable=shops_walkable)
+    return Model(graph=build_graph(raster, cell_m=cell_m, reach_m=reach_m, min_component_m2=min_component_m2))
+
+
+def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step_em: bool = False,
+                weights: bool = True, progress: Callable[[], None] | None = None) -> tuple[Model, dict]:
+    """Learn the heading bias, then (optionally) γ by hard EM, then the f1/f2 weights.
+
+    Every walk starts at its first waypoint. Returns the new model and a report dict.
+    """
+    from posefix.mapmatch.learn import (clamp_states, learn_heading_bias, learn_step_constants,
+                                        learn_weights, walk_features)
+
+    tick = progress or (lambda: None)
+    surveyed = [w for w in walks if w.waypoints.shape[0] >= 2]
+    if not surveyed:
+        raise ValueError("training needs walks with at least two TYPE_WAYPOINT lines")
+    report: dict = {}
+    if heading_bias:
+        b = learn_heading_bias(surveyed, model.step_model)
+        model = model.with_(step_model=replace(model.step_model, heading_bias_rad=b))
+        report["heading_bias_deg"] = round(float(np.degrees(b)), 2)
+    tick()
+    if step_em:
+        sm = learn_step_constants(model, [(steps_from_walk(w), tuple(w.waypoints[0, 1:3])) for w in surveyed])
+        model = model.with_(step_model=sm)
+        report["gamma_m"] = round(sm.gamma_m, 3)
+    tick()
+    if weights:
+        data = []
+        for w in surveyed:
+            st = steps_from_walk(w)
+            if len(st) < 3:
+                continue
+            t = np.concatenate([[int(w.acc[0, 0])], st.t_ms])
+            wf = walk_features(model, st.vectors_m(model.step_model), t, start_xy_m=tuple(w.waypoints[0, 1:3]))
+            data.append((wf, clamp_states(model.graph, t, w.waypoints)))
+        fit = learn_weights(model, data, learn=("f1", "f2"))
+        model = model.with_(weights=fit.weights)
+        report["weights"] = {k: round(v, 3) for k, v in fit.weights.items()}
+        report["log_likelihood"] = round(fit.log_likelihood, 2)
+    tick()
+    return model, report
+
+
+def track_walk_file(model: Model, walk_path: str | Path, start_xy_m=None, fingerprints=None,
+                    heading: str = "rotation_vector") -> TrackResult:
+    """Read a walk file and track it (see :func:`posefix.mapmatch.tracker.track_walk`)."""
+    return track_walk(model, read_walk(walk_path), start_xy_m=start_xy_m, fingerprints=fingerprints, heading=heading)
+
+
+def write_track_csv(path: str | Path, res: TrackResult, georef: GeoRef | None) -> None:
+    """TRACK.csv: one row per step (and the start): t (unix ms), x, y (m), lat, lon (deg,
+    empty without a geo-reference), sigma_major_m, sigma_minor_m (1σ), angle_deg (CCW from x)."""
+    ll = georef.to_lonlat(res.p_xy_m) if georef is not None else None
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(TRACK_COLUMNS)
+        for i in range(res.t_ms.size):
+            lat = f"{ll[i, 1]:.8f}" if ll is not None else ""
+            lon = f"{ll[i, 0]:.8f}" if ll is not None else ""
+            w.writerow([int(res.t_ms[i]), f"{res.p_xy_m[i, 0]:.3f}", f"{res.p_xy_m[i, 1]:.3f}", lat, lon,
+                        f"{res.sigma_major_m[i]:.3f}", f"{res.sigma_minor_m[i]:.3f}", f"{res.angle_deg[i]:.1f}"])
+
+
+def read_track_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """TRACK.csv -> ``t_ms`` (n,), ``p_xy_m`` (n, 2); errors name file, line and field."""
+    t, p = [], []
+    with open(path, newline="") as fh:
+        r = csv.reader(fh)
+        header = next(r, None)
+        if header is None or header[:3] != ["t", "x", "y"]:
+            raise ValueError(f"{path}:1: field header: expected columns starting t,x,y")
+        for lineno, row in enumerate(r, start=2):
+            for j, name in enumerate(("t", "x", "y")):
+                try:
+                    float(row[j])
+                except (ValueError, IndexError):
+                    raise ValueError(f"{path}:{lineno}: field {name}: not a number")
+            t.append(float(row[0]))
+            p.append([float(row[1]), float(row[2])])
+    if not t:
+        raise ValueError(f"{path}:2: field t: no rows")
+    return np.asarray(t), np.asarray(p)
