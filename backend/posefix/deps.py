@@ -83,19 +83,20 @@ def check_json_body(request: Request) -> None:
 
 def authenticate(request: Request, session: Session, settings: Settings, *, allow_multipart: bool) -> Principal:
     db: Database = request.app.state.db
+    write_session = session if request.method not in SAFE_METHODS else None
     auth = request.headers.get("authorization")
     if auth:
         scheme, _, value = auth.partition(" ")
         if scheme.lower() != "bearer" or not value.strip():
             raise Unauthorized("Authorization must be 'Bearer <token>'", code="invalid_token")
-        principal = resolve_token(db, session, settings, value.strip())
+        principal = resolve_token(db, session, settings, value.strip(), write_session)
         if request.method not in SAFE_METHODS and principal.scope != TokenScope.write:
             raise Forbidden("this API token is read-only", code="insufficient_scope")
         return principal
     sid = request.cookies.get(settings.session_cookie_name)
     if not sid:
         raise Unauthorized("not logged in", code="not_authenticated")
-    principal = resolve_session(db, session, settings, sid)
+    principal = resolve_session(db, session, settings, sid, write_session)
     if request.method not in SAFE_METHODS:
         check_origin(request, settings, required=True)
         if not allow_multipart:

@@ -17,7 +17,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 __all__ = [
     "AppError", "BadRequest", "Unauthorized", "Forbidden", "NotFound", "Conflict", "Gone",
-    "PayloadTooLarge", "UnsupportedMediaType", "Unprocessable", "TooManyRequests",
+    "LengthRequired", "PayloadTooLarge", "UnsupportedMediaType", "Unprocessable", "TooManyRequests",
     "ErrorBody", "responses", "install_error_handlers",
 ]
 
@@ -79,6 +79,10 @@ class Gone(AppError):
     status_code, code = 410, "gone"
 
 
+class LengthRequired(AppError):
+    status_code, code = 411, "length_required"
+
+
 class PayloadTooLarge(AppError):
     status_code, code = 413, "payload_too_large"
 
@@ -97,7 +101,7 @@ class TooManyRequests(AppError):
 
 _DESCRIPTIONS = {
     400: "Bad request", 401: "Not authenticated", 403: "Not allowed", 404: "Not found",
-    409: "Conflict", 410: "Gone", 413: "Payload too large", 415: "Unsupported media type",
+    409: "Conflict", 410: "Gone", 411: "Length required", 413: "Payload too large", 415: "Unsupported media type",
     422: "Unprocessable", 429: "Too many requests",
 }
 

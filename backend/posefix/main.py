@@ -130,13 +130,15 @@ def ops_router() -> APIRouter:
 
 
 def api_router() -> APIRouter:
+    from posefix.edits.endpoints import router as edits_router
     from posefix.jobs.endpoints import router as jobs_router
+    from posefix.runs.endpoints import router as runs_router
     from posefix.users.endpoints import router as users_router
 
     router = APIRouter(prefix=API_PREFIX)
     router.include_router(users_router)
-    _include_optional(router, "posefix.runs.endpoints")
-    _include_optional(router, "posefix.edits.endpoints")
+    router.include_router(runs_router)
+    router.include_router(edits_router)
     router.include_router(jobs_router)
     _include_optional(router, "posefix.tiles.endpoints")
     _include_optional(router, "posefix.tasks.endpoints")

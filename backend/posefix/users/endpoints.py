@@ -19,14 +19,11 @@ router = APIRouter()
 
 
 @router.post("/auth/login", response_model=UserPublic, tags=["auth"], responses=responses(401, 403, 429))
-def login(
-    body: LoginRequest, request: Request, response: Response, session: SessionDep, db: DatabaseDep,
-    settings: SettingsDep,
-) -> UserPublic:
+def login(body: LoginRequest, request: Request, response: Response, db: DatabaseDep, settings: SettingsDep) -> UserPublic:
     """Log in with a password; sets an HttpOnly session cookie."""
     check_origin(request, settings, required=False)
     user, sid = service.login(
-        db, session, settings, body.username, body.password, client_ip(request), request.headers.get("user-agent")
+        db, settings, body.username, body.password, client_ip(request), request.headers.get("user-agent")
     )
     response.set_cookie(
         settings.session_cookie_name, sid, max_age=settings.session_absolute_timeout_s, httponly=True,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
@@ -87,33 +88,47 @@ def check_throttle(db: Database, settings: Settings, username: str, client_ip: s
 
 
 def login(
-    db: Database, session: Session, settings: Settings, username: str, password: str,
-    client_ip: str, user_agent: str | None,
+    db: Database, settings: Settings, username: str, password: str, client_ip: str, user_agent: str | None,
 ) -> tuple[User, str]:
-    """Check the password; return the user and a new session id (the cookie value)."""
+    """Check the password; return the user and a new session id (the cookie value).
+
+    Runs its own transaction so a failure is recorded even though the request answers 401.
+    """
     check_throttle(db, settings, username, client_ip)
-    user = repo.get_user_by_username(session, username)
-    ok = verify_password(password, user.password_hash if user else None)
-    if not ok or user is None or user.disabled:
-        # Recorded in its own transaction: the request's rolls back with the 401.
-        with db.transaction() as s:
-            repo.add_failure(s, username, client_ip)
+    with db.transaction() as session:
+        user = repo.get_user_by_username(session, username)
+        ok = verify_password(password, user.password_hash if user else None)
+        if not ok or user is None or user.disabled:
+            repo.add_failure(session, username, client_ip)
+            user = None
+        else:
+            sid = new_session_id()
+            now = utcnow()
+            repo.add(
+                session,
+                AuthSession(
+                    id_hash=hash_secret(sid, settings.secret_key), user_id=user.id, created_at=now,
+                    last_seen_at=now, expires_at=now + dt.timedelta(seconds=settings.session_absolute_timeout_s),
+                    client_ip=client_ip[:64], user_agent=(user_agent or "")[:255],
+                ),
+            )
+            repo.clear_failures(session, username)
+    if user is None:
         raise Unauthorized("wrong username or password", code="invalid_credentials")
-    sid = new_session_id()
-    now = utcnow()
-    repo.add(
-        session,
-        AuthSession(
-            id_hash=hash_secret(sid, settings.secret_key), user_id=user.id, created_at=now,
-            last_seen_at=now, expires_at=now + dt.timedelta(seconds=settings.session_absolute_timeout_s),
-            client_ip=client_ip[:64], user_agent=(user_agent or "")[:255],
-        ),
-    )
-    repo.clear_failures(session, username)
     return user, sid
 
 
-def resolve_session(db: Database, session: Session, settings: Settings, sid: str) -> Principal:
+def _touch(db: Database, write_session: Session | None, fn: Any) -> None:
+    # In a writing request the request's own transaction holds SQLite's write lock, so the
+    # touch must go through it; a reading request touches in a short transaction of its own.
+    if write_session is not None:
+        fn(write_session)
+    else:
+        with db.transaction() as s:
+            fn(s)
+
+
+def resolve_session(db: Database, session: Session, settings: Settings, sid: str, write_session: Session | None = None) -> Principal:
     id_hash = hash_secret(sid, settings.secret_key)
     auth = repo.get_session_by_hash(session, id_hash)
     now = utcnow()
@@ -127,12 +142,11 @@ def resolve_session(db: Database, session: Session, settings: Settings, sid: str
     if user is None or user.disabled:
         raise Unauthorized("account disabled", code="account_disabled")
     if (now - auth.last_seen_at).total_seconds() > TOUCH_EVERY_S:
-        with db.transaction() as s:
-            repo.touch_session(s, id_hash, now)
+        _touch(db, write_session, lambda s: repo.touch_session(s, id_hash, now))
     return Principal(user.id, user.username, Role(user.role), "session", TokenScope.write, id_hash)
 
 
-def resolve_token(db: Database, session: Session, settings: Settings, token: str) -> Principal:
+def resolve_token(db: Database, session: Session, settings: Settings, token: str, write_session: Session | None = None) -> Principal:
     token_hash = hash_secret(token, settings.secret_key)
     row = repo.get_token_by_hash(session, token_hash)
     if row is None or row.revoked_at is not None:
@@ -142,8 +156,7 @@ def resolve_token(db: Database, session: Session, settings: Settings, token: str
         raise Unauthorized("account disabled", code="account_disabled")
     now = utcnow()
     if row.last_used_at is None or (now - row.last_used_at).total_seconds() > TOUCH_EVERY_S:
-        with db.transaction() as s:
-            repo.touch_token(s, row.id, now)
+        _touch(db, write_session, lambda s: repo.touch_token(s, row.id, now))
     return Principal(user.id, user.username, Role(user.role), "token", TokenScope(row.scope), token_hash)
 
 

@@ -1,0 +1,107 @@
+"""Routes: preview, edit batches, revisions (list, detail, diff, revert), edits."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Query, Request
+
+from posefix.deps import AnyUser, EditorUser, SessionDep, SettingsDep
+from posefix.edits import repository as edits_repo
+from posefix.edits import service
+from posefix.edits.schemas import (
+    DiffResponse, EditBatchAccepted, EditBatchIn, EditPublic, PreviewRequest, PreviewResponse, RevertRequest,
+    RevisionDetail, RevisionList, RevisionPublic,
+)
+from posefix.errors import responses
+from posefix.runs import repository as runs_repo
+from posefix.runs.access import get_visible_run
+from posefix.runs.models import Revision
+
+router = APIRouter(tags=["edits"])
+
+
+def _wake(request: Request) -> Any:
+    worker = getattr(request.app.state, "worker", None)
+    return worker.wake if worker is not None else None
+
+
+def _rev_public(rev: Revision, detail: bool = False) -> RevisionPublic:
+    data = dict(
+        number=rev.number, kind=rev.kind, batch_id=rev.batch_id, created_by=rev.created_by, created_at=rev.created_at,
+        solver=rev.solver, drift=rev.drift, max_correction_m=rev.max_correction_m,
+        n_moves=len(rev.edit_set.get("moves", [])), n_deleted=len(rev.edit_set.get("deleted", [])),
+    )
+    return RevisionDetail(**data, edit_set=rev.edit_set) if detail else RevisionPublic(**data)
+
+
+@router.post("/runs/{run_id}/preview", response_model=PreviewResponse, responses=responses(401, 403, 404, 415, 422))
+def preview(run_id: int, body: PreviewRequest, principal: EditorUser, session: SessionDep, settings: SettingsDep) -> dict[str, Any]:
+    """Re-optimise keyframes with proposed, uncommitted edits (refused moves are left out and listed)."""
+    run = get_visible_run(session, principal, settings, run_id)
+    return service.preview(session, settings, run, body.base_revision, body.moves, body.deleted)
+
+
+@router.post("/runs/{run_id}/edits", response_model=EditBatchAccepted, status_code=202, responses=responses(400, 401, 403, 404, 409, 415, 422))
+def submit_edits(
+    run_id: int, body: EditBatchIn, request: Request, principal: EditorUser, session: SessionDep, settings: SettingsDep,
+    if_match: Annotated[str | None, Header(alias="If-Match", description='"<revision>" the edits were made on')] = None,
+) -> EditBatchAccepted:
+    """Submit a batch made against a base revision; the worker writes the next revision.
+
+    409 ``stale_revision`` (with ``current_revision``) when someone else's batch came first;
+    422 ``edit_refused`` with a reason per refused edit.
+    """
+    run = get_visible_run(session, principal, settings, run_id)
+    base = service.parse_base(if_match, body.base_revision)
+    batch, job_id, flags = service.submit(
+        session, settings, principal, run, base=base, moves=body.moves, deleted=body.deleted, accept=body.accept,
+        comment=body.comment, task_id=body.task_id, wake=_wake(request),
+    )
+    return EditBatchAccepted(batch_id=batch.id, job_id=job_id, revision=batch.revision, flags=flags)  # type: ignore[arg-type]
+
+
+@router.get("/runs/{run_id}/revisions", response_model=RevisionList, responses=responses(401, 404))
+def list_revisions(run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> RevisionList:
+    run = get_visible_run(session, principal, settings, run_id)
+    return RevisionList(items=[_rev_public(r) for r in runs_repo.revisions(session, run.id)], head_revision=run.head_revision)
+
+
+@router.get("/runs/{run_id}/revisions/{number}", response_model=RevisionDetail, responses=responses(401, 404, 409))
+def get_revision(run_id: int, number: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> RevisionPublic:
+    run = get_visible_run(session, principal, settings, run_id)
+    return _rev_public(service.ready(session, run, number), detail=True)
+
+
+@router.get("/runs/{run_id}/diff", response_model=DiffResponse, responses=responses(401, 404, 409, 422))
+def diff(
+    run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep,
+    from_: Annotated[int, Query(alias="from", ge=0, le=10**9)], to: Annotated[int, Query(ge=0, le=10**9)],
+) -> dict[str, Any]:
+    """Per-keyframe horizontal displacement between two ready revisions."""
+    run = get_visible_run(session, principal, settings, run_id)
+    return service.diff(session, settings, run, from_, to)
+
+
+@router.post("/runs/{run_id}/revert", response_model=EditBatchAccepted, status_code=202, responses=responses(400, 401, 403, 404, 409, 415, 422))
+def revert(
+    run_id: int, body: RevertRequest, request: Request, principal: EditorUser, session: SessionDep, settings: SettingsDep,
+    if_match: Annotated[str | None, Header(alias="If-Match")] = None,
+) -> EditBatchAccepted:
+    """Make a new revision with the edits of ``to_revision`` (history is kept)."""
+    run = get_visible_run(session, principal, settings, run_id)
+    base = run.head_revision if if_match is None and body.base_revision is None else service.parse_base(if_match, body.base_revision)
+    batch, job_id = service.revert(session, settings, principal, run, to_revision=body.to_revision, base=base,
+                                   comment=body.comment, wake=_wake(request))
+    return EditBatchAccepted(batch_id=batch.id, job_id=job_id, revision=batch.revision, flags=[])
+
+
+@router.get("/runs/{run_id}/edits", response_model=list[EditPublic], responses=responses(401, 404))
+def list_edits(
+    run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep,
+    batch_id: Annotated[int | None, Query(ge=1, le=2**62)] = None,
+    limit: Annotated[int, Query(ge=1, le=10000)] = 1000, offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
+) -> list[EditPublic]:
+    """Every edit ever submitted on the run (author, time, task), oldest first."""
+    run = get_visible_run(session, principal, settings, run_id)
+    return [EditPublic.model_validate(e) for e in edits_repo.edits(session, run.id, batch_id, limit, offset)]

@@ -1,0 +1,250 @@
+"""Edit rules of the service: preview, submit a batch against a base revision, revert, diff.
+
+Submitting claims revision ``base + 1`` with one conditional UPDATE of the run's head
+(``head_revision = base``): of two submitters on the same base exactly one changes a row,
+the other gets 409 with the current head. The batch, its edits and its job are written in
+the same transaction, so a job never points at a batch that was rolled back.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from posefix.config import Settings
+from posefix.db import on_commit
+from posefix.edits import repository as edits_repo
+from posefix.edits.models import EditBatch
+from posefix.edits.schemas import MoveIn
+from posefix.engine import Problem
+from posefix.errors import BadRequest, Conflict, NotFound, Unprocessable
+from posefix.jobs import repository as jobs
+from posefix.runs import correction, storage
+from posefix.runs import repository as runs_repo
+from posefix.runs.models import Revision, Run, RunStatus
+from posefix.users.models import Role
+from posefix.users.service import Principal
+
+REVISION_JOB = "revision"
+
+
+def load_problem(session: Session, settings: Settings, run: Run) -> Problem:
+    rev0 = runs_repo.revision(session, run.id, 0)
+    if rev0 is None:
+        raise NotFound(f"run {run.id} has no imported data", code="revision_not_found")
+    samples_file, derived, name, rules = rev0.samples_file, run.orientation_derived, run.name, dict(run.rules)
+
+    def load() -> tuple[Any, Any]:
+        pose = storage.read_samples(storage.FileStore(settings.files_dir), samples_file, orientation_derived=derived, source=name)
+        return pose, correction.engine_config(settings, rules)
+
+    return correction.PROBLEMS.problem(run.id, rules, load)
+
+
+def edit_set_at(session: Session, run: Run, revision: int) -> dict[str, Any]:
+    """The cumulative edit set of a revision, ready or still being computed."""
+    if revision == 0:
+        return correction.EMPTY_EDIT_SET
+    rev = runs_repo.revision(session, run.id, revision)
+    if rev is not None:
+        return rev.edit_set
+    batch = edits_repo.batch_for_revision(session, run.id, revision)
+    if batch is None:
+        raise NotFound(f"run {run.id} has no revision {revision}", code="revision_not_found",
+                       extra={"current_revision": run.head_revision})
+    return batch.edit_set
+
+
+def _moves(moves: list[MoveIn]) -> list[correction.BatchMove]:
+    return [correction.BatchMove(m.index, m.lon, m.lat, m.alt) for m in moves]
+
+
+def preview(session: Session, settings: Settings, run: Run, base_revision: int, moves: list[MoveIn], deleted: list[int]) -> dict[str, Any]:
+    started = time.perf_counter()
+    base = edit_set_at(session, run, base_revision)
+    problem = load_problem(session, settings, run)
+    batch_moves = _moves(moves)
+    check = correction.check_batch(problem, run.rules, base, batch_moves, deleted)
+    accepted_idx = {m.index for m in check.accepted}
+    refused_deleted = {r.index for r in check.refusals if r.reason == "out_of_range"}
+    kept = [m for m in batch_moves if m.index in accepted_idx]
+    merged = correction.merge(base, kept, [d for d in deleted if d not in refused_deleted], check.flags)
+    warm = correction.PROBLEMS.solution(run.id, run.rules, base_revision)
+    sol = correction.solve(problem, merged, warm)
+    correction.PROBLEMS.put_solution(run.id, run.rules, base_revision, sol)
+    lon, lat, _ = correction.keyframe_lonlatalt(problem, sol)
+    return {
+        "base_revision": base_revision,
+        "positions": np.round(np.stack([lon, lat], axis=1), 8).tolist(),
+        "solver": correction.solver_json(sol),
+        "drift": correction.drift_json(sol),
+        "refusals": [r.to_json() for r in check.refusals],
+        "flags": [f.to_json() for f in check.flags],
+        "time_ms": round((time.perf_counter() - started) * 1000, 2),
+    }
+
+
+def parse_base(if_match: str | None, body_base: int | None) -> int:
+    header_base = None
+    if if_match:
+        raw = if_match.strip()
+        if raw.startswith("W/"):
+            raw = raw[2:]
+        raw = raw.strip('"')
+        if not raw.isdigit():
+            raise BadRequest('If-Match must be a revision number, e.g. "3"', code="bad_if_match")
+        header_base = int(raw)
+    if header_base is not None and body_base is not None and header_base != body_base:
+        raise BadRequest("If-Match and base_revision disagree", code="base_mismatch")
+    base = header_base if header_base is not None else body_base
+    if base is None:
+        raise BadRequest("say which revision the edits were made on (If-Match or base_revision)", code="base_revision_required")
+    return base
+
+
+def _stale(session: Session, run: Run, base: int) -> Conflict:
+    session.refresh(run)
+    return Conflict(
+        f"revision {base} is not the latest of run {run.id} (it is {run.head_revision}); reload and edit again",
+        code="stale_revision", extra={"current_revision": run.head_revision, "ready_revision": run.revision},
+    )
+
+
+def _claim(session: Session, run: Run, base: int) -> None:
+    if not runs_repo.claim_next_revision(session, run.id, base):
+        raise _stale(session, run, base)
+
+
+def _enqueue_revision(session: Session, settings: Settings, run: Run, batch: EditBatch, principal: Principal, wake: Any) -> int:
+    job = jobs.enqueue(
+        session, REVISION_JOB, {"run_id": run.id, "batch_id": batch.id, "revision": batch.revision},
+        run_id=run.id, created_by=principal.user_id, max_attempts=settings.job_max_attempts,
+    )
+    batch.job_id = job.id
+    if wake is not None:
+        on_commit(session, wake)
+    return job.id
+
+
+def submit(
+    session: Session, settings: Settings, principal: Principal, run: Run, *, base: int, moves: list[MoveIn],
+    deleted: list[int], accept: bool, comment: str | None, task_id: int | None, wake: Any = None,
+) -> tuple[EditBatch, int, list[dict[str, Any]]]:
+    if not moves and not deleted and not accept:
+        raise Unprocessable("the batch is empty (no moves, deletions or accept)", code="empty_batch")
+    if base != run.head_revision:
+        raise _stale(session, run, base)
+    base_set = edit_set_at(session, run, base)
+    problem = load_problem(session, settings, run)
+    batch_moves = _moves(moves)
+    check = correction.check_batch(problem, run.rules, base_set, batch_moves, deleted)
+    if check.refusals:
+        raise Unprocessable(
+            f"{len(check.refusals)} edit(s) refused by the editing rules", code="edit_refused",
+            extra={"refusals": [r.to_json() for r in check.refusals]},
+        )
+    _claim(session, run, base)
+    merged = correction.merge(base_set, batch_moves, deleted, check.flags)
+    batch = EditBatch(
+        run_id=run.id, kind="edit", base_revision=base, revision=base + 1, author_id=principal.user_id,
+        task_id=task_id, accept=accept, comment=comment, edit_set=merged,
+    )
+    try:
+        with session.begin_nested():
+            edits_repo.add(session, batch)
+    except IntegrityError:
+        raise _stale(session, run, base) from None
+    edits_repo.insert_edits(session, [
+        {"batch_id": batch.id, "run_id": run.id, "k": m.index, "kind": "move", "lon": m.lon, "lat": m.lat, "alt": m.alt,
+         "author_id": principal.user_id, "task_id": task_id}
+        for m in batch_moves
+    ] + [
+        {"batch_id": batch.id, "run_id": run.id, "k": int(d), "kind": "delete", "lon": None, "lat": None, "alt": None,
+         "author_id": principal.user_id, "task_id": task_id}
+        for d in deleted
+    ])
+    job_id = _enqueue_revision(session, settings, run, batch, principal, wake)
+    session.refresh(run)
+    if accept and principal.role in (Role.admin, Role.reviewer):
+        new_status = RunStatus.accepted
+    elif accept:
+        new_status = RunStatus.corrected
+    else:
+        new_status = RunStatus.in_review
+    runs_repo.record(
+        session, run, principal.user_id, "edited", to_status=new_status if new_status != run.status else None,
+        revision=batch.revision, task_id=task_id, comment=comment,
+        detail={"batch_id": batch.id, "moves": len(moves), "deleted": len(deleted), "accept": accept, "job_id": job_id},
+    )
+    run.status = new_status
+    run.verified = new_status == RunStatus.accepted
+    if moves:
+        run.adjusted = True
+    session.flush()
+    return batch, job_id, [f.to_json() for f in check.flags]
+
+
+def revert(
+    session: Session, settings: Settings, principal: Principal, run: Run, *, to_revision: int, base: int,
+    comment: str | None, wake: Any = None,
+) -> tuple[EditBatch, int]:
+    if to_revision > run.revision:
+        raise Conflict(f"revision {to_revision} is not ready (latest ready: {run.revision})", code="revision_pending")
+    target = runs_repo.revision(session, run.id, to_revision)
+    if target is None:
+        raise NotFound(f"run {run.id} has no revision {to_revision}", code="revision_not_found")
+    if base != run.head_revision:
+        raise _stale(session, run, base)
+    _claim(session, run, base)
+    batch = EditBatch(
+        run_id=run.id, kind="revert", base_revision=base, revision=base + 1, author_id=principal.user_id,
+        accept=False, comment=comment, edit_set=target.edit_set,
+    )
+    try:
+        with session.begin_nested():
+            edits_repo.add(session, batch)
+    except IntegrityError:
+        raise _stale(session, run, base) from None
+    job_id = _enqueue_revision(session, settings, run, batch, principal, wake)
+    session.refresh(run)
+    runs_repo.record(session, run, principal.user_id, "reverted", to_status=RunStatus.in_review if run.status != RunStatus.in_review else None,
+                     revision=batch.revision, comment=comment, detail={"to_revision": to_revision, "batch_id": batch.id, "job_id": job_id})
+    run.status = RunStatus.in_review
+    run.verified = False
+    session.flush()
+    return batch, job_id
+
+
+def ready(session: Session, run: Run, number: int) -> Revision:
+    rev = runs_repo.revision(session, run.id, number)
+    if rev is None:
+        if 0 <= number <= run.head_revision:
+            raise Conflict(f"revision {number} is still being computed", code="revision_pending",
+                           extra={"revision": run.revision, "head_revision": run.head_revision})
+        raise NotFound(f"run {run.id} has no revision {number}", code="revision_not_found")
+    return rev
+
+
+def diff(session: Session, settings: Settings, run: Run, a: int, b: int) -> dict[str, Any]:
+    ra, rb = ready(session, run, a), ready(session, run, b)
+    fs = storage.FileStore(settings.files_dir)
+    ka, kb = storage.read_keyframes(fs, ra.keyframes_file), storage.read_keyframes(fs, rb.keyframes_file)
+    d = correction.horizontal_distance_m(ka.lon_deg, ka.lat_deg, kb.lon_deg, kb.lat_deg)
+    changed = np.flatnonzero(d > 0.001)
+    return {
+        "from": a, "to": b,
+        "max_m": float(d.max()) if len(d) else 0.0,
+        "mean_m": float(d.mean()) if len(d) else 0.0,
+        "changed": int(len(changed)),
+        "displacement_m": np.round(d, 4).tolist(),
+        "keyframes": [
+            {"index": int(i), "displacement_m": round(float(d[i]), 4),
+             "from": [round(float(ka.lon_deg[i]), 8), round(float(ka.lat_deg[i]), 8)],
+             "to": [round(float(kb.lon_deg[i]), 8), round(float(kb.lat_deg[i]), 8)]}
+            for i in changed
+        ],
+    }
