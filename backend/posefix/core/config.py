@@ -53,9 +53,10 @@ class UserConfig:
 @dataclass(frozen=True)
 class RelativeConfig:
     sigma_t_floor_m: float = 0.02
-    sigma_t_per_m: float = 0.01
-    sigma_r_floor_rad: float = 0.001
-    sigma_r_per_s_rad: float = 0.002
+    sigma_t_per_sqrt_s_m: float = 0.2
+    sigma_t_per_m: float = 0.002
+    sigma_r_floor_rad: float = 0.00001
+    sigma_r_per_sqrt_s_rad: float = 0.00003
 
 
 @dataclass(frozen=True)

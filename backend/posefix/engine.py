@@ -1,0 +1,395 @@
+"""The correction engine's Python API (used by the CLI, the server, notebooks).
+
+>>> from posefix.io import read_run, read_edits
+>>> from posefix.engine import CorrectionConfig, prepare, correct
+>>> result = correct(read_run("drive.csv"), read_edits("edits.json"), CorrectionConfig())
+>>> result.run, result.keyframes, result.solver, result.drift
+
+``prepare(run, cfg)`` does the work that does not depend on the edits once (local frame,
+keyframes, reported relative motion) and returns a ``Problem``; ``problem.solve(edits,
+warm_start=previous)`` re-optimises after each batch of edits and ``problem.preview(...)``
+answers a live drag at keyframe level (no propagation to full rate).
+
+Frames: the optimisation runs in an East-North-Up frame anchored at the first sample
+(exact, through ECEF).  A pose's quaternion in the run is relative to ENU at its own
+position; it is rotated into the anchored frame for the optimisation and back on output.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from posefix.core import geodesy
+from posefix.core import rotations as rot
+from posefix.core import terms as T
+from posefix.core.config import ConfigError, CorrectionConfig
+from posefix.core.drift import DriftEstimate, estimate_drift, no_drift
+from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes, select_keyframes
+from posefix.core.propagate import propagate_corrections
+from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
+from posefix.core.run import PoseRun
+from posefix.core.solver import SolverResult, solve
+
+__all__ = [
+    "CorrectionConfig",
+    "ConfigError",
+    "Problem",
+    "Solution",
+    "Correction",
+    "Preview",
+    "EditRefusedError",
+    "KeyframeEdit",
+    "prepare",
+    "correct",
+]
+
+
+class EditRefusedError(ValueError):
+    """Edits refused by the edit rules; ``refusals`` lists each with its reason."""
+
+    def __init__(self, refusals: list[Refusal]):
+        self.refusals = refusals
+        super().__init__("; ".join(f"keyframe {r.index}: {r.reason}: {r.message}" for r in refusals))
+
+
+@dataclass(frozen=True)
+class KeyframeEdit:
+    """A move of keyframe ``index`` (into the problem's keyframes) to lon/lat (and alt)."""
+
+    index: int
+    lon_deg: float
+    lat_deg: float
+    alt_m: float | None = None
+
+
+@dataclass(frozen=True)
+class Solution:
+    """A keyframe-level solution: keyframes, solver result, drift, and the raw state."""
+
+    keyframes: KeyframeSet
+    solver: SolverResult
+    drift: DriftEstimate
+    x: np.ndarray  # (6k_active,) state over the active (non-removed) keyframes
+    active: np.ndarray  # (k,) bool: keyframe took part in the optimisation
+    flags: list[Refusal] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Correction:
+    """The result of ``correct``: the corrected full-rate run and how it was obtained."""
+
+    run: PoseRun
+    keyframes: KeyframeSet
+    solver: SolverResult
+    drift: DriftEstimate
+    kept_rows: np.ndarray  # rows of the input present in ``run`` (deleted keyframes removed)
+    flags: list[Refusal] = field(default_factory=list)
+    propagation_time_s: float = 0.0
+
+    @property
+    def solution(self) -> Solution:
+        return Solution(self.keyframes, self.solver, self.drift, self._x, self._active, self.flags)
+
+
+@dataclass(frozen=True)
+class Preview:
+    """A live-drag answer: corrected keyframe positions and what was refused."""
+
+    lon_deg: np.ndarray  # (k,)
+    lat_deg: np.ndarray  # (k,)
+    solution: Solution
+    refusals: list[Refusal]
+
+
+class Problem:
+    """A run prepared for correction: local frame, keyframes, reported motion.
+
+    Attributes
+    ----------
+    origin : geodesy.EnuOrigin        the anchor of the local frame (first sample).
+    p_enu_m : (n,3)                   reported positions in the local frame, metres.
+    q_wxyz : (n,4)                    reported orientations, body -> anchored ENU.
+    g_enu_m : (n,3) or None           raw GNSS in the local frame (NaN where no fix).
+    along_m : (n,)                    distance travelled along the reported track, metres.
+    keyframe_index : (k,)             rows of the default keyframes (no edits).
+    """
+
+    def __init__(self, run: PoseRun, cfg: CorrectionConfig | None = None):
+        self.run = run
+        self.cfg = cfg or CorrectionConfig()
+        self.origin = geodesy.EnuOrigin(float(run.lat_deg[0]), float(run.lon_deg[0]), float(run.alt_m[0]))
+        self.p_enu_m = geodesy.geodetic_to_enu(run.lat_deg, run.lon_deg, run.alt_m, self.origin)
+        self.g_enu_m = None
+        if run.has_gnss:
+            self.g_enu_m = geodesy.geodetic_to_enu(run.gnss_lat_deg, run.gnss_lon_deg, run.gnss_alt_m, self.origin)
+        self.along_m = path_length_m(self.p_enu_m)
+        self._q_local = rot.normalize_quat(run.q_body_to_enu_wxyz)
+        image_mask = None
+        if self.cfg.keyframes.images and run.images is not None:
+            image_mask = np.array([bool(s) for s in run.images])
+        self._image_mask = image_mask
+        self.keyframe_index = self.keyframes_for(np.zeros(0, dtype=np.int64))
+        self._local_to_anchor: dict[bytes, np.ndarray] = {}
+        self._static: dict[bytes, T.Terms] = {}
+
+    # ----------------------------------------------------------------- keyframes and frames
+
+    def keyframes_for(self, required_rows: np.ndarray) -> np.ndarray:
+        """Keyframe rows given rows that must be keyframes (edited or deleted samples)."""
+        kc = self.cfg.keyframes
+        return select_keyframes(
+            self.run.t_s, self.p_enu_m, kc.every_s, kc.every_m, self._image_mask, required_rows
+        )
+
+    def local_to_anchor(self, rows: np.ndarray) -> np.ndarray:
+        """(m,4) quaternions rotating ENU at each row's position into the anchored ENU frame."""
+        key = np.asarray(rows).tobytes()
+        if key not in self._local_to_anchor:
+            R = geodesy.rotation_local_enu_to_origin_enu(self.run.lat_deg[rows], self.run.lon_deg[rows], self.origin)
+            self._local_to_anchor[key] = rot.matrix_to_quat(R)
+        return self._local_to_anchor[key]
+
+    def anchored_quat(self, rows: np.ndarray) -> np.ndarray:
+        """Reported orientations of rows, body -> anchored ENU, (m,4)."""
+        return rot.quat_multiply(self.local_to_anchor(rows), self._q_local[rows])
+
+    def to_enu(self, lon_deg, lat_deg, alt_m) -> np.ndarray:
+        return geodesy.geodetic_to_enu(np.atleast_1d(lat_deg), np.atleast_1d(lon_deg), np.atleast_1d(alt_m), self.origin)
+
+    # ----------------------------------------------------------------- terms
+
+    def _static_terms(self, rows: np.ndarray) -> T.Terms:
+        """Edit-independent parts of the terms on these keyframe rows (cached)."""
+        key = rows.tobytes()
+        cached = self._static.get(key)
+        if cached is not None:
+            return cached
+        cfg = self.cfg
+        p = self.p_enu_m[rows]
+        step_m = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        dt_s = np.diff(self.run.t_s[rows])
+        rc = cfg.relative
+        sigma_rt = np.sqrt(rc.sigma_t_floor_m**2 + rc.sigma_t_per_sqrt_s_m**2 * dt_s + (rc.sigma_t_per_m * step_m) ** 2)
+        sigma_rr = np.sqrt(rc.sigma_r_floor_rad**2 + rc.sigma_r_per_sqrt_s_rad**2 * dt_s)
+        empty3 = np.zeros((0, 3))
+        terms = T.build_terms(
+            p, self.anchored_quat(rows), np.zeros(0, np.int64), empty3, empty3 + 1.0,
+            np.zeros(0, np.int64), empty3, empty3 + 1.0, sigma_rt, sigma_rr, cfg.gravity.sigma,
+            loss=cfg.location.loss, loss_scale=cfg.location.loss_scale,
+        )
+        if len(self._static) > 8:
+            self._static.clear()
+        self._static[key] = terms
+        return terms
+
+    def _location_measurements(self, rows: np.ndarray) -> np.ndarray:
+        return self.p_enu_m[rows] if self.g_enu_m is None else self.g_enu_m[rows]
+
+    # ----------------------------------------------------------------- solving
+
+    def solve_rows(
+        self,
+        index: np.ndarray,
+        edit_kf: np.ndarray,
+        edit_c_m: np.ndarray,
+        edit_has_alt: np.ndarray,
+        deleted_kf: np.ndarray,
+        warm_start: Solution | Correction | None = None,
+        flags: list[Refusal] | None = None,
+    ) -> Solution:
+        """Optimise keyframes ``index`` with edits given as keyframe numbers and ENU targets."""
+        cfg = self.cfg
+        k = len(index)
+        deleted = np.zeros(k, dtype=bool)
+        deleted[np.asarray(deleted_kf, dtype=np.int64)] = True
+        remove = cfg.rules.deleted == "remove"
+        active = ~deleted if remove else np.ones(k, dtype=bool)
+        act_rows = index[active]
+        new_number = np.cumsum(active) - 1  # keyframe number -> active number
+        static = self._static_terms(act_rows)
+        t_act = self.run.t_s[act_rows]
+        p_rep = static.p_rep_m
+        g = self._location_measurements(act_rows)
+        has_fix = np.all(np.isfinite(g), axis=1)
+        if not remove:
+            has_fix &= ~deleted[active]  # a flagged (deleted) keyframe keeps no location term
+        edit_kf = np.asarray(edit_kf, dtype=np.int64)
+        e_act = new_number[edit_kf]
+        edit_c_m = np.asarray(edit_c_m, dtype=float).reshape(-1, 3)
+        edit_has_alt = np.asarray(edit_has_alt, dtype=bool)
+        lc, uc = cfg.location, cfg.user
+        if cfg.drift.enabled and len(e_act):
+            drift = estimate_drift(
+                t_act, p_rep, np.where(has_fix[:, None], g, np.nan), e_act, edit_c_m, edit_has_alt,
+                lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
+                cfg.drift.walk_m2_per_s, cfg.drift.min_edits_for_estimate,
+            )
+        else:
+            drift = no_drift(len(act_rows))
+        loc_idx = np.flatnonzero(has_fix)
+        sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[loc_idx] ** 2)
+        loc_sigma = np.stack([sigma_h, sigma_h, np.full(len(loc_idx), lc.sigma_v_m)], axis=1)
+        loc_g = g[loc_idx] - drift.bias_enu_m[loc_idx]
+        user_sigma = np.tile([uc.sigma_h_m, uc.sigma_h_m, uc.sigma_v_m], (len(e_act), 1))
+        user_sigma[~edit_has_alt, 2] = np.inf
+        c = edit_c_m.copy()
+        c[~edit_has_alt, 2] = p_rep[e_act[~edit_has_alt], 2]  # unused (zero weight), kept finite
+        terms = dataclasses.replace(
+            static,
+            loc_idx=loc_idx, loc_g_m=loc_g, loc_w=1.0 / loc_sigma,
+            user_idx=e_act, user_c_m=c, user_w=1.0 / user_sigma,
+        )
+        x0 = self._warm_state(act_rows, p_rep, warm_start)
+        x, result = solve(terms, x0, cfg.solver.method, cfg.solver.max_iterations, cfg.solver.ftol)
+        p_sol, theta = T.split_state(x)
+        q_sol = rot.quat_multiply(rot.matrix_to_quat(static.R_rep), rot.exp_quat(theta))
+        # keyframes outside the optimisation keep their reported pose (they leave the output)
+        p_all = self.p_enu_m[index].copy()
+        q_all = self.anchored_quat(index).copy()
+        p_all[active], q_all[active] = p_sol, q_sol
+        edited = np.zeros(k, dtype=bool)
+        edited[edit_kf] = True
+        kfs = KeyframeSet(
+            index=index, t_s=self.run.t_s[index], p_enu_m=p_all, q_wxyz=q_all,
+            reported_p_enu_m=self.p_enu_m[index], reported_q_wxyz=self.anchored_quat(index),
+            edited=edited, deleted=deleted,
+        )
+        return Solution(kfs, result, drift, x, active, list(flags or []))
+
+    def _warm_state(self, act_rows: np.ndarray, p_rep: np.ndarray, warm) -> np.ndarray | None:
+        """Initial state from a previous solution: its corrections interpolated in time."""
+        if warm is None:
+            return None
+        sol = warm.solution if isinstance(warm, Correction) else warm
+        prev_rows = sol.keyframes.index[sol.active]
+        prev = sol.x.reshape(-1, 6)
+        if len(prev_rows) == len(act_rows) and np.array_equal(prev_rows, act_rows):
+            return sol.x.copy()
+        t_prev = self.run.t_s[prev_rows]
+        t_new = self.run.t_s[act_rows]
+        dp = prev[:, :3] - self.p_enu_m[prev_rows]
+        x0 = np.empty((len(act_rows), 6))
+        for j in range(3):
+            x0[:, j] = p_rep[:, j] + np.interp(t_new, t_prev, dp[:, j])
+            x0[:, 3 + j] = np.interp(t_new, t_prev, prev[:, 3 + j])
+        return x0.ravel()
+
+    def solve(self, edits=None, warm_start: Solution | Correction | None = None) -> Solution:
+        """Optimise with an ``EditSet`` (edits by sample time); edited samples become keyframes.
+
+        Raises ``EditMatchError`` for a time naming no sample and ``EditRefusedError`` when
+        the edit rules refuse a move.
+        """
+        index, edit_kf, c_m, has_alt, deleted_kf = self._resolve_edit_set(edits)
+        flags = self._check_rules(index, edit_kf, c_m, deleted_kf)
+        return self.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags)
+
+    def _resolve_edit_set(self, edits):
+        from posefix.io.edits import EditSet, match_edits
+
+        edits = edits or EditSet()
+        matched = match_edits(self.run, edits)
+        rows_m = np.asarray(matched.move_index, dtype=np.int64)
+        rows_d = np.asarray(matched.deleted_index, dtype=np.int64)
+        index = self.keyframes_for(np.concatenate([rows_m, rows_d]))
+        edit_kf = np.searchsorted(index, rows_m)
+        deleted_kf = np.searchsorted(index, rows_d)
+        has_alt = np.array([m.alt_m is not None for m in edits.moves], dtype=bool)
+        alt = np.array([m.alt_m if m.alt_m is not None else self.run.alt_m[r] for m, r in zip(edits.moves, rows_m)])
+        c_m = (
+            self.to_enu([m.lon_deg for m in edits.moves], [m.lat_deg for m in edits.moves], alt)
+            if len(rows_m) else np.zeros((0, 3))
+        )
+        return index, edit_kf, c_m, has_alt, deleted_kf
+
+    def _check_rules(self, index, edit_kf, c_m, deleted_kf) -> list[Refusal]:
+        rules: EditRules = self.cfg.rules
+        moves = [KeyframeMove(int(i), float(c[0]), float(c[1])) for i, c in zip(edit_kf, c_m)]
+        check = check_edits(rules, self.p_enu_m[index, :2], moves, [int(d) for d in deleted_kf])
+        if check.refusals:
+            raise EditRefusedError(check.refusals)
+        return check.flags
+
+    def preview(
+        self,
+        moves: list[KeyframeEdit],
+        deleted: list[int] = (),
+        warm_start: Solution | None = None,
+        edited_before: dict[int, tuple[float, float]] | None = None,
+    ) -> Preview:
+        """Keyframe-level answer for a live drag on the default keyframes (no full-rate output).
+
+        Refused moves are left out and listed; flagged ones are kept.
+        """
+        index = self.keyframe_index
+        rules = self.cfg.rules
+        c_all = np.zeros((len(moves), 3))
+        for n, m in enumerate(moves):
+            alt = m.alt_m if m.alt_m is not None else float(self.run.alt_m[index[min(max(m.index, 0), len(index) - 1)]])
+            c_all[n] = self.to_enu(m.lon_deg, m.lat_deg, alt)[0]
+        km = [KeyframeMove(int(m.index), float(c[0]), float(c[1])) for m, c in zip(moves, c_all)]
+        check = check_edits(rules, self.p_enu_m[index, :2], km, list(deleted), edited_before)
+        keep = [n for n, m in enumerate(km) if any(a is m for a in check.accepted)]
+        edit_kf = np.array([moves[n].index for n in keep], dtype=np.int64)
+        has_alt = np.array([moves[n].alt_m is not None for n in keep], dtype=bool)
+        deleted_ok = np.array([d for d in deleted if 0 <= int(d) < len(index)], dtype=np.int64)
+        sol = self.solve_rows(index, edit_kf, c_all[keep], has_alt, deleted_ok, warm_start, check.flags)
+        lat, lon, _ = geodesy.enu_to_geodetic(sol.keyframes.p_enu_m, self.origin)
+        return Preview(lon_deg=lon, lat_deg=lat, solution=sol, refusals=check.refusals)
+
+    # ----------------------------------------------------------------- full rate
+
+    def full_run(self, sol: Solution) -> Correction:
+        """Propagate a keyframe solution to every sample; drop or flag deleted keyframes' rows."""
+        started = time.perf_counter()
+        kfs = sol.keyframes
+        n = self.run.n
+        act = kfs.index[sol.active]
+        c_kf = rot.quat_multiply(kfs.q_wxyz[sol.active], rot.quat_conjugate(kfs.reported_q_wxyz[sol.active]))
+        p_new, c_s = propagate_corrections(
+            self.run.t_s, self.p_enu_m, act, kfs.p_enu_m[sol.active], c_kf,
+            self.cfg.propagation.mode, self.along_m,
+        )
+        # the correction is a rotation of the anchored frame; express it in each sample's own
+        # ENU (the frames of neighbouring samples differ by micro-radians, so the segment's
+        # keyframe frame is used for all its samples)
+        seg = np.clip(np.searchsorted(act, np.arange(n), side="right") - 1, 0, len(act) - 1)
+        r = self.local_to_anchor(act)[seg]
+        c_local = rot.quat_multiply(rot.quat_conjugate(r), rot.quat_multiply(c_s, r))
+        q_new = rot.normalize_quat(rot.quat_multiply(c_local, self._q_local))
+        lat, lon, alt = geodesy.enu_to_geodetic(p_new, self.origin)
+        out = self.run.with_poses(lat, lon, alt, q_new)
+        deleted_rows = rows_of_keyframes(kfs.index, n, np.flatnonzero(kfs.deleted))
+        if self.cfg.rules.deleted == "remove" and len(deleted_rows):
+            keep = np.ones(n, dtype=bool)
+            keep[deleted_rows] = False
+            kept = np.flatnonzero(keep)
+            out = out.take(kept)
+        else:
+            kept = np.arange(n)
+            if len(deleted_rows):
+                flagged = np.zeros(n, dtype=np.int8)
+                flagged[deleted_rows] = 1
+                out = dataclasses.replace(out, extra={**out.extra, "flagged": flagged})
+        corr = Correction(
+            run=out, keyframes=kfs, solver=sol.solver, drift=sol.drift, kept_rows=kept, flags=sol.flags,
+            propagation_time_s=time.perf_counter() - started,
+        )
+        object.__setattr__(corr, "_x", sol.x)
+        object.__setattr__(corr, "_active", sol.active)
+        return corr
+
+
+def prepare(run: PoseRun, cfg: CorrectionConfig | None = None) -> Problem:
+    """Prepare a run for correction (local frame, keyframes); reusable across edit batches."""
+    return Problem(run, cfg)
+
+
+def correct(run: PoseRun, edits=None, cfg: CorrectionConfig | None = None, warm_start=None) -> Correction:
+    """Correct a run with an ``EditSet``: optimise keyframes, propagate to every sample."""
+    problem = prepare(run, cfg)
+    return problem.full_run(problem.solve(edits, warm_start=warm_start))
