@@ -1,0 +1,117 @@
+"""Map-matching benchmark on the shared indoor floor: ``python -m benchmarks.mapmatch [--quick]``.
+
+Rows (error at the surveyed waypoints, metres):
+  (a) dead reckoning from the known start (same steps, step model and heading bias)
+  (b) CRF, known start           (first waypoint given; it is left out of the errors)
+  (c) CRF, unknown start         (uniform over all reachable vertices; all waypoints)
+  (d) CRF + WiFi, unknown start  (fingerprints built from the OTHER walks: leave-one-out)
+
+Parameters are never fitted on the walk being scored: two folds (even / odd walks), each
+tracked with the heading bias and the f1/f2 weights learned on the other fold. ``--quick``
+uses every third walk and learns only the heading bias. Time per step is the tracker's
+online step (one core), model size the device file (.npz).
+
+Data: ../shared/data/indoor-site1-F1 (or $POSEFIX_SHARED_DATA/indoor-site1-F1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+TARGETS = {"b": (2.0, 4.0), "c": (3.0, None), "d": (3.0, None)}
+TARGET_MS_PER_STEP = 2.0
+NAIVE_PDR = (4.4, 8.8)  # README: fixed 0.7 m stride, rotation-vector heading, no map
+
+
+def shared_data() -> Path:
+    env = os.environ.get("POSEFIX_SHARED_DATA")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="every third walk; learn only the heading bias")
+    args = ap.parse_args(argv)
+
+    from posefix.mapmatch import build_model, read_walk, track_walk, train_model
+    from posefix.mapmatch.evaluate import evaluate_track, summarise
+    from posefix.mapmatch.fingerprints import build_fingerprints
+    from posefix.mapmatch.model import model_bytes
+
+    floor = shared_data() / "indoor-site1-F1"
+    files = sorted(glob.glob(str(floor / "walks" / "*.txt")))
+    if not files:
+        print(f"error: no walks under {floor}/walks (set POSEFIX_SHARED_DATA)", file=sys.stderr)
+        return 1
+    if args.quick:
+        files = files[::3]
+    walks = [read_walk(f) for f in files]
+    t0 = time.perf_counter()
+    base = build_model(floor)
+    build_s = time.perf_counter() - t0
+    size_kib = len(model_bytes(base)) / 1024
+
+    folds = [list(range(0, len(walks), 2)), list(range(1, len(walks), 2))]
+    errs = {k: [] for k in "abcd"}
+    ms = {k: [] for k in "bcd"}
+    reports = []
+    for i, fold in enumerate(folds):
+        other = [walks[j] for j in folds[1 - i]]
+        t1 = time.perf_counter()
+        model, rep = train_model(base, other, heading_bias=True, step_em=False, weights=not args.quick)
+        reports.append((rep, time.perf_counter() - t1))
+        for j in fold:
+            w = walks[j]
+            start = tuple(w.waypoints[0, 1:3])
+            rb = track_walk(model, w, start_xy_m=start)
+            errs["a"].append(evaluate_track(w.waypoints, rb.t_ms, rb.dr_xy_m, skip_first=True).err_wp_m)
+            errs["b"].append(evaluate_track(w.waypoints, rb.t_ms, rb.p_xy_m, skip_first=True).err_wp_m)
+            rc = track_walk(model, w, start_xy_m=None)
+            errs["c"].append(evaluate_track(w.waypoints, rc.t_ms, rc.p_xy_m).err_wp_m)
+            fp = build_fingerprints([x for k, x in enumerate(walks) if k != j])
+            rd = track_walk(model, w, start_xy_m=None, fingerprints=fp)
+            errs["d"].append(evaluate_track(w.waypoints, rd.t_ms, rd.p_xy_m).err_wp_m)
+            for k, r in (("b", rb), ("c", rc), ("d", rd)):
+                ms[k].append((r.time_per_step_s * 1000, max(len(r.t_ms) - 1, 1)))
+            print(f"  walk {Path(w.path).stem[-8:]}: b {errs['b'][-1].mean() if errs['b'][-1].size else float('nan'):5.2f} m"
+                  f"  c {errs['c'][-1].mean():6.2f} m  d {errs['d'][-1].mean():6.2f} m", flush=True)
+
+    def ratio(v, t):
+        return f"{v:6.2f} ({v / t:4.2f}×)" if t else f"{v:6.2f}        "
+
+    labels = {"a": "(a) dead reckoning, known start", "b": "(b) CRF, known start",
+              "c": "(c) CRF, unknown start", "d": "(d) CRF + WiFi (leave-one-out)"}
+    print()
+    print(f"posefix mapmatch benchmark: {len(walks)} walks, indoor-site1-F1, {base.graph.n_vertices} vertices "
+          f"at {base.graph.cell_m} m; model {size_kib:.1f} KiB, built in {build_s:.2f} s")
+    for i, (rep, dt) in enumerate(reports):
+        print(f"  fold {i}: trained on {len(folds[1 - i])} walks in {dt:.1f} s: {rep}")
+    print()
+    hdr = f"{'':34s} {'n':>4s}  {'mean m (÷target)':>17s}  {'p95 m (÷target)':>17s}  {'ms/step (÷2.0)':>15s}"
+    print(hdr)
+    print("-" * len(hdr))
+    for k in "abcd":
+        s = summarise(errs[k])
+        tm, tp = TARGETS.get(k, (None, None))
+        if k in ms:
+            tot = sum(a * n for a, n in ms[k]) / sum(n for _, n in ms[k])
+            t_txt = f"{tot:6.2f} ({tot / TARGET_MS_PER_STEP:4.2f}×)"
+        else:
+            t_txt = ""
+        print(f"{labels[k]:34s} {s['n']:4d}  {ratio(s['mean_m'], tm):>17s}  {ratio(s['p95_m'], tp):>17s}  {t_txt:>15s}")
+    print(f"{'README naive PDR (reference)':34s} {'':4s}  {NAIVE_PDR[0]:6.2f}{'':11s}  {NAIVE_PDR[1]:6.2f}")
+    print("\nTargets: (b) mean ≤ 2.0 m, p95 ≤ 4.0 m; (c)/(d) mean ≤ 3.0 m; ≤ 2 ms per step. Ratio > 1 misses the target.")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
