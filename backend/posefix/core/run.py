@@ -167,18 +167,18 @@ def validate_run(run: PoseRun, quaternion_tolerance: float = 1e-3) -> None:
             raise RunValidationError(name, None, f"shape {a.shape}, expected ({n},)")
         row = _first_bad(~np.isfinite(a))
         if row is not None:
-            raise RunValidationError(name, row, f"value {a[row]!r} is not a finite number")
+            raise RunValidationError(name, row, f"value {float(a[row])!r} is not a finite number")
     row = _first_bad(np.abs(run.lat_deg) > 90.0)
     if row is not None:
-        raise RunValidationError("lat_deg", row, f"latitude {run.lat_deg[row]} is outside [-90, 90]")
+        raise RunValidationError("lat_deg", row, f"latitude {float(run.lat_deg[row])} is outside [-90, 90]")
     row = _first_bad(np.abs(run.lon_deg) > 180.0)
     if row is not None:
-        raise RunValidationError("lon_deg", row, f"longitude {run.lon_deg[row]} is outside [-180, 180]")
+        raise RunValidationError("lon_deg", row, f"longitude {float(run.lon_deg[row])} is outside [-180, 180]")
     row = _first_bad(np.diff(run.t_s) <= 0.0)
     if row is not None:
         raise RunValidationError(
             "t_s", row + 1,
-            f"timestamps not strictly increasing: {run.t_s[row + 1]!r} follows {run.t_s[row]!r}",
+            f"timestamps not strictly increasing: {float(run.t_s[row + 1])!r} follows {float(run.t_s[row])!r}",
         )
     q = run.q_body_to_enu_wxyz
     if q.shape != (n, 4):
@@ -203,13 +203,13 @@ def validate_run(run: PoseRun, quaternion_tolerance: float = 1e-3) -> None:
                 raise RunValidationError(name, None, f"shape {a.shape}, expected ({n},)")
             row = _first_bad(np.isinf(a))
             if row is not None:
-                raise RunValidationError(name, row, f"value {a[row]!r} is not finite")
+                raise RunValidationError(name, row, f"value {float(a[row])!r} is not finite")
         row = _first_bad(np.abs(run.gnss_lat_deg) > 90.0)
         if row is not None:
-            raise RunValidationError("gnss_lat_deg", row, f"latitude {run.gnss_lat_deg[row]} is outside [-90, 90]")
+            raise RunValidationError("gnss_lat_deg", row, f"latitude {float(run.gnss_lat_deg[row])} is outside [-90, 90]")
         row = _first_bad(np.abs(run.gnss_lon_deg) > 180.0)
         if row is not None:
-            raise RunValidationError("gnss_lon_deg", row, f"longitude {run.gnss_lon_deg[row]} is outside [-180, 180]")
+            raise RunValidationError("gnss_lon_deg", row, f"longitude {float(run.gnss_lon_deg[row])} is outside [-180, 180]")
     if run.images is not None and len(run.images) != n:
         raise RunValidationError("images", None, f"{len(run.images)} entries, expected {n}")
     for name, a in run.extra.items():

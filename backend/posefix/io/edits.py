@@ -189,14 +189,14 @@ def match_edits(run: PoseRun, edits: EditSet) -> MatchedEdits:
             k = int(bad[0])
             raise EditMatchError(
                 src, None, name.format(k),
-                f"t={times[k]!r} s matches no sample of {run.source or 'the run'} to the millisecond "
-                f"(nearest sample t={run.t_s[rows[k]]!r} s)",
+                f"t={float(times[k])!r} s matches no sample of {run.source or 'the run'} to the millisecond "
+                f"(nearest sample t={float(run.t_s[rows[k]])!r} s)",
             )
     seen: dict[int, str] = {}
     for name, rows in (("edits[{}].t", mi), ("deleted[{}]", di)):
         for k, r in enumerate(rows.tolist()):
             label = name.format(k)
             if r in seen:
-                raise EditMatchError(src, None, label, f"names the same sample (t={run.t_s[r]!r} s) as {seen[r]}")
+                raise EditMatchError(src, None, label, f"names the same sample (t={float(run.t_s[r])!r} s) as {seen[r]}")
             seen[r] = label
     return MatchedEdits(move_index=mi.astype(np.intp), deleted_index=di.astype(np.intp))

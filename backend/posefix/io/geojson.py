@@ -176,6 +176,7 @@ def read_geojson(path: str | os.PathLike) -> PoseRun:
         g = np.array([r[5] if r[5] is not None else [np.nan] * 3 for r in rows], dtype=float)
         gnss = (g[:, 1], g[:, 0], g[:, 2])
     images = [r[6] or "" for r in rows] if any(r[6] is not None for r in rows) else None
+    extra = _extra_columns(doc, len(rows))
     line_cache: dict[str, Any] = {}
 
     def line_of_row(i: int) -> int | None:
@@ -186,11 +187,29 @@ def read_geojson(path: str | os.PathLike) -> PoseRun:
         return getattr(owners_l[i], "line", None) if i < len(owners_l) else None
 
     return build_run(
-        path, t, lat, lon, alt, q, line_of_row=line_of_row, gnss=gnss, images=images,
+        path, t, lat, lon, alt, q, line_of_row=line_of_row, gnss=gnss, images=images, extra=extra,
         field_names={"t_s": "times", "lat_deg": "coordinates (lat)", "lon_deg": "coordinates (lon)",
                      "alt_m": "coordinates (alt)", "q_body_to_enu_wxyz": "q_body_to_enu_wxyz",
                      "gnss_lat_deg": "gnss (lat)", "gnss_lon_deg": "gnss (lon)", "gnss_alt_m": "gnss (alt)"},
     )
+
+
+def _extra_columns(doc: Any, n: int) -> dict[str, np.ndarray]:
+    """Per-sample ``properties.extra`` columns of a single-LineString file (as posefix writes)."""
+    feats = [f for _, f in _features(doc)]
+    if len(feats) != 1:
+        return {}
+    extra = (feats[0].get("properties") or {}).get("extra")
+    if not isinstance(extra, dict):
+        return {}
+    out = {}
+    for name, values in extra.items():
+        if isinstance(values, list) and len(values) == n:
+            if all(isinstance(v, (int, float)) and not isinstance(v, bool) or v is None for v in values):
+                out[name] = np.array([np.nan if v is None else v for v in values], dtype=float)
+            else:
+                out[name] = np.array(["" if v is None else str(v) for v in values], dtype=object)
+    return out
 
 
 def _jsonable(a: np.ndarray) -> list:
