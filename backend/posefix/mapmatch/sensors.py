@@ -282,32 +282,41 @@ def _wrap(a: np.ndarray | float) -> np.ndarray:
 def detect_steps(
     acc: np.ndarray,
     min_interval_s: float = 0.30,
-    min_peak_mps2: float = 0.6,
-    smooth_s: float = 0.15,
+    min_prominence_mps2: float = 2.0,
+    cutoff_hz: float = 2.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Steps from the accelerometer (n, 4) = ``t_ms, ax, ay, az`` (m/s²).
 
-    The magnitude minus gravity is smoothed with a centred moving average of ``smooth_s``
-    seconds, and each peak higher than ``min_peak_mps2`` above gravity and at least
-    ``min_interval_s`` after the previous one is a step (a heel strike shows as a vertical
-    acceleration peak of roughly 1-3 m/s²). Returns ``t_ms`` (k,) and ``freq_hz`` (k,);
-    the first step's frequency is that of the second.
+    The magnitude minus gravity is low-passed (2nd-order Butterworth at ``cutoff_hz``,
+    run forwards and backwards so peaks are not delayed; walking cadence is 1.4-2.4 Hz)
+    and each peak that stands ``min_prominence_mps2`` above its surrounding valleys and
+    comes at least ``min_interval_s`` after the previous one is a step. A heel strike's
+    peak-to-valley swing is 2-5 m/s²; the phone's hand tremor while standing is well
+    under 1 m/s². (Chosen on the even-numbered shared walks, checked on the odd ones:
+    the dead-reckoning error at waypoints drops from 5.6 to 3.5 m against a 0.6 m/s²
+    height threshold on a 0.15 s moving average.) Returns ``t_ms`` (k,) int64 and the
+    step frequency ``freq_hz`` (k,), the median of 1 / interval over the step and its two
+    neighbours (a single interval is noisy); pauses over 1 s count as 1.8 Hz.
     """
+    from scipy.signal import butter, filtfilt
+
     t = acc[:, 0]
-    if t.size < 3:
+    if t.size < 16:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
     dt_s = max(float(np.median(np.diff(t))) / 1000.0, 1e-3)
     a = np.linalg.norm(acc[:, 1:4], axis=1) - GRAVITY_MPS2
-    n = max(1, int(round(smooth_s / dt_s)))
-    a_s = np.convolve(a, np.ones(n) / n, mode="same")
-    idx, _ = find_peaks(a_s, height=min_peak_mps2, distance=max(1, int(min_interval_s / dt_s)))
+    wn = min(cutoff_hz * 2.0 * dt_s, 0.99)
+    b_f, a_f = butter(2, wn)
+    a_s = filtfilt(b_f, a_f, a)
+    idx, _ = find_peaks(a_s, prominence=min_prominence_mps2, distance=max(1, int(min_interval_s / dt_s)))
     t_ms = t[idx].astype(np.int64)
-    if t_ms.size == 0:
-        return t_ms, np.zeros(0)
+    if t_ms.size < 2:
+        return t_ms, np.full(t_ms.size, 1.8)
     gaps_s = np.diff(t_ms) / 1000.0
-    # Pauses longer than 1 s are not a step period; use a typical walking cadence there.
-    freq = np.where(gaps_s > 1.0, 1.8, 1.0 / np.maximum(gaps_s, 1e-3))
-    freq = np.concatenate([[freq[0] if freq.size else 1.8], freq])
+    f = np.where(gaps_s > 1.0, 1.8, 1.0 / np.maximum(gaps_s, 1e-3))
+    f = np.concatenate([[f[0]], f])
+    pad = np.concatenate([[f[0]], f, [f[-1]]])
+    freq = np.median(np.stack([pad[:-2], pad[1:-1], pad[2:]]), axis=0)
     return t_ms, freq
 
 
