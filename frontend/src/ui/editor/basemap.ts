@@ -32,9 +32,22 @@ export async function fetchStyle(): Promise<{ style: StyleSpecification; note: s
   }
 }
 
-/** Basemap options from the style: one per source, with kind/title from style metadata. */
+/**
+ * Basemap options from the style. The server lists them in `metadata["posefix:sources"]`
+ * (name, title, kind, layer ids, in switcher order); a style without it falls back to one
+ * option per source found in the layers.
+ */
 export function basemapOptions(style: StyleSpecification): BasemapOption[] {
-  const meta = ((style.metadata ?? {}) as Record<string, unknown>)["posefix:sources"] as Record<string, { kind?: string; title?: string }> | undefined;
+  const meta = (style.metadata ?? {}) as Record<string, unknown>;
+  const listed = meta["posefix:sources"];
+  if (Array.isArray(listed)) {
+    return listed.map((m: { name: string; title?: string; kind?: string; layers?: string[] }) => ({
+      source: m.name,
+      label: m.title || m.name,
+      kind: m.kind ?? "other",
+      layers: m.layers ?? style.layers.filter((l) => (l as { source?: string }).source === m.name).map((l) => l.id),
+    }));
+  }
   const bySource = new Map<string, string[]>();
   for (const l of style.layers) {
     const src = (l as { source?: string }).source;
@@ -42,12 +55,7 @@ export function basemapOptions(style: StyleSpecification): BasemapOption[] {
     if (!bySource.has(src)) bySource.set(src, []);
     bySource.get(src)!.push(l.id);
   }
-  return [...bySource].map(([source, layers]) => {
-    const srcSpec = (style.sources[source] ?? {}) as Record<string, unknown>;
-    const m = meta?.[source] ?? ((srcSpec.metadata ?? {}) as { kind?: string; title?: string });
-    const kind = m.kind ?? (srcSpec.type === "raster" ? "satellite" : "street");
-    return { source, layers, kind, label: m.title ?? source };
-  });
+  return [...bySource].map(([source, layers]) => ({ source, layers, kind: "other", label: source }));
 }
 
 /** Show only `source`'s layers. */
@@ -72,6 +80,8 @@ export function basemapSwitcher(opts: BasemapOption[], initial: string | null, o
 
 /** The source visible when the style loads (the first with a visible layer). */
 export function initialBasemap(style: StyleSpecification, opts: BasemapOption[]): string | null {
+  const named = ((style.metadata ?? {}) as Record<string, unknown>)["posefix:default"];
+  if (typeof named === "string" && opts.some((o) => o.source === named)) return named;
   for (const o of opts) {
     const visible = o.layers.some((id) => {
       const l = style.layers.find((x) => x.id === id) as { layout?: { visibility?: string } } | undefined;

@@ -3,6 +3,8 @@
  * DOM panels together. State flows one way: input -> modes/controller -> store -> adapter/panels.
  */
 import * as maplibregl from "maplibre-gl";
+// MapLibre's worker is its own module file; hand its bundled URL to MapLibre (works offline).
+import workerUrl from "maplibre-gl/dist/maplibre-gl-worker.mjs?url";
 import type { Map as MlMap, Popup } from "maplibre-gl";
 import { dismissRefusal, select, selectNextAdjustable, selectStep, toggleGhost } from "../../actions/editor";
 import { actionAcceptAsIs, actionMarkDeleted, actionReset, actionRestore, actionUnmove } from "../../actions/edits";
@@ -29,17 +31,18 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string)
   const title = h("h1", { class: "run-title" }, "Loading run…");
   const undoBtn = btn("↶ Undo", () => ctl.undo(), { "data-testid": "undo" });
   const redoBtn = btn("↷ Redo", () => ctl.redo(), { "data-testid": "redo" });
-  const deleteBtn = btn("Delete keyframe", () => toggleDeleteSelected(), { "data-testid": "delete", title: "Mark the selected keyframe for deletion (Delete)" });
+  const deleteBtn = btn("Delete", () => toggleDeleteSelected(), { "data-testid": "delete", title: "Mark the selected keyframe for deletion (Delete)" });
   const rangeBtn = btn("Delete range…", () => modes?.switchTo(store.get().mode === "select-range" ? "browse" : "select-range"), { "data-testid": "delete-range", title: "Click the first and last keyframe of the range (R)" });
   const acceptBtn = btn("Accept as is", () => ctl.perform(actionAcceptAsIs()), { "data-testid": "accept", title: "The run needs no correction" });
   const resetBtn = btn("Reset", () => ctl.perform(actionReset()), { "data-testid": "reset", title: "Drop all unsaved edits (undoable)" });
   const ghostBtn = btn("Ghost", () => store.update(toggleGhost), { "data-testid": "ghost", "aria-pressed": "true", title: "Show the loaded revision under the corrected track (G)" });
   const imagesBtn = btn("Images", () => openImages(store.get().selected), { "data-testid": "images-button", title: "Images of the selected keyframe (I)" });
-  const fitBtn = btn("Fit run", () => fit(), { title: "Zoom to the whole run (F)" });
+  const fitBtn = btn("Fit", () => fit(), { title: "Zoom to the whole run (F)" });
   const comment = h("input", { id: "submit-comment", placeholder: "Comment (optional)", "aria-label": "Comment for this submission" });
   const submitBtn = btn("Submit", () => void ctl.submit(comment.value), { class: "primary", "data-testid": "submit" });
   const toolbar = h("div", { class: "toolbar", role: "toolbar", "aria-label": "Editing tools" },
-    title, undoBtn, redoBtn, h("span", { class: "sep" }), deleteBtn, rangeBtn, acceptBtn, resetBtn, h("span", { class: "sep" }), ghostBtn, imagesBtn, fitBtn, h("span", { class: "sep" }), comment, submitBtn);
+    title, undoBtn, redoBtn, h("span", { class: "sep" }), deleteBtn, rangeBtn, acceptBtn, resetBtn, h("span", { class: "sep" }), ghostBtn, imagesBtn, fitBtn,
+    h("span", { class: "grow" }), comment, submitBtn);
 
   const mapEl = h("div", { class: "map", id: "map", "aria-label": "Map of the run; drag keyframes to correct them", role: "application", tabindex: "0" });
   const legendBox = h("div", { class: "legend-box" });
@@ -113,6 +116,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string)
   }
 
   (async () => {
+    maplibregl.setWorkerUrl(workerUrl);
     const { style, note } = await fetchStyle();
     if (note) mapNote.textContent = note;
     const m = new maplibregl.Map({ container: mapEl, style, center: [24.94, 60.17], zoom: 12, attributionControl: false, dragRotate: true, fadeDuration: 0 });
@@ -144,8 +148,8 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string)
         commitRange: (a, b) => ctl.commitRange(a, b),
         openImages: (i) => openImages(i),
       });
-      render(store.get(), null);
       mapEl.dataset.ready = "true";
+      render(store.get(), null);
     });
   })();
   cleanups.push(() => {
