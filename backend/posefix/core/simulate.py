@@ -18,8 +18,8 @@ The model (all units SI, angles radians unless named ``_deg``):
 
 Regimes (``REGIMES``):
 
-- ``white``: GNSS white noise (2.5 m horizontal, 4 m vertical, 1σ); the pose wanders as an
-  Ornstein-Uhlenbeck process (3 m, correlation 120 s).
+- ``white``: GNSS white noise (2.5 m per horizontal axis, 4 m vertical, 1σ); the pose
+  wanders smoothly (an Ornstein-Uhlenbeck process, 3 m, correlation 120 s, low-passed 20 s).
 - ``drift``: a post-processed GNSS/INS pose whose bias moves a few cm/s (OU 4 m / 300 s,
   low-passed 30 s); raw GNSS with white noise in the ``gnss_*`` columns.
 - ``canyon``: urban-canyon offset jumps of 5-20 m lasting 1-5 minutes in the GNSS, which the
@@ -378,7 +378,8 @@ def _errors(rng: np.random.Generator, regime: str, t_rel_s: np.ndarray, gnss_rat
     white = rng.standard_normal((t_fix.size, 3)) * np.array([2.5, 2.5, 4.0])
     gnss_fix = white.copy()
     if regime in ("white", "outliers"):
-        pose_c = _ou(rng, t_c.size, dt_c, 3.0, 120.0, 3) * np.array([1.0, 1.0, 0.6])
+        # a smooth wander (OU low-passed over 20 s): metres over minutes, cm over a second
+        pose_c = _lowpass(_ou(rng, t_c.size, dt_c, 3.0, 120.0, 3), dt_c, 20.0) * np.array([1.0, 1.0, 0.6])
     elif regime == "drift":
         pose_c = _lowpass(_ou(rng, t_c.size, dt_c, 4.0, 300.0, 3), dt_c, 30.0) * np.array([1.0, 1.0, 0.5])
     elif regime in ("canyon", "mixed"):
@@ -386,7 +387,7 @@ def _errors(rng: np.random.Generator, regime: str, t_rel_s: np.ndarray, gnss_rat
         gnss_fix += _coarse_to_fine(t_c, canyon, t_fix)
         pose_c = _lowpass(canyon, dt_c, 10.0)
         if regime == "canyon":
-            pose_c = pose_c + _ou(rng, t_c.size, dt_c, 0.5, 120.0, 3)
+            pose_c = pose_c + _lowpass(_ou(rng, t_c.size, dt_c, 0.5, 120.0, 3), dt_c, 20.0)
         else:
             pose_c = pose_c + _lowpass(_ou(rng, t_c.size, dt_c, 4.0, 300.0, 3), dt_c, 30.0) * np.array([1.0, 1.0, 0.5])
     else:
