@@ -99,6 +99,11 @@ class ProblemCache:
             while len(self._solutions) > 4 * self.size:
                 self._solutions.popitem(last=False)
 
+    def forget_all(self) -> None:
+        with self._lock:
+            self._problems.clear()
+            self._solutions.clear()
+
     def forget(self, run_id: int) -> None:
         with self._lock:
             for key in [k for k in self._problems if k[0] == run_id]:

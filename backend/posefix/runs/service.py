@@ -179,6 +179,10 @@ class _GeoJsonCache:
                 self._data.move_to_end(key)
             return v
 
+    def clear(self) -> None:
+        with self._lock:
+            self._data.clear()
+
     def put(self, key: tuple[Any, ...], value: bytes) -> None:
         with self._lock:
             self._data[key] = value
