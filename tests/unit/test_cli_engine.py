@@ -155,6 +155,7 @@ def test_bad_edits_and_unmatched_times(simulated, tmp_path):
     (["correct", "RUN", "-o", "OUT.csv", "--keyframes-every-s", "1", "--keyframes-every-m", "5"], ["either"]),
     (["correct", "RUN", "-o", "OUT.csv", "--keyframes-every-s", "0"], ["positive"]),
     (["correct", "RUN", "-o", "OUT.xyz"], ["unknown file extension"]),
+    (["correct", "RUN", "-o", "OUT.csv", "--format", "kml"], ["--format", "writable"]),
     (["correct", "RUN", "-o", "missing/OUT.csv"], ["does not exist"]),
     (["correct", "RUN", "-o", "RUN"], ["overwrite an input"]),
     (["simulate", "--out", "d", "--regime", "foggy"], ["unknown regime"]),

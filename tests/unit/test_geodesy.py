@@ -124,3 +124,14 @@ def test_as_origin_refuses_bad_values():
         as_origin((float("nan"), 0.0, 0.0))
     with pytest.raises(ValueError, match="lat, lon"):
         as_origin((1.0,))
+
+
+def test_quaternion_forms_equal_the_matrices():
+    from posefix.core.geodesy import quat_ecef_to_enu, quat_local_enu_to_origin_enu
+    from posefix.core.rotations import quat_to_matrix
+
+    rng = np.random.default_rng(4)
+    lat, lon = rng.uniform(-90, 90, 500), rng.uniform(-180, 180, 500)
+    assert np.abs(quat_to_matrix(quat_ecef_to_enu(lat, lon)) - rotation_ecef_to_enu(lat, lon)).max() < 1e-14
+    o = (47.0, -3.0, 10.0)
+    assert np.abs(quat_to_matrix(quat_local_enu_to_origin_enu(lat, lon, o)) - rotation_local_enu_to_origin_enu(lat, lon, o)).max() < 1e-14

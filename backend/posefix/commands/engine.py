@@ -3,12 +3,14 @@
 Registered on ``posefix.cli.app``. Heavy modules (numpy, pyarrow, scipy, the engine) are
 imported inside the commands so ``posefix --help`` and every other command stay quick.
 Bad input prints one line ``error: ...`` on stderr and exits with status 1; nothing is
-written (outputs go to temporary files renamed at the end).
+written (outputs go to temporary files renamed at the end). Set ``POSEFIX_DEBUG=1`` to see
+the traceback of an unexpected ``ValueError``/``OSError`` instead.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 import warnings
@@ -60,6 +62,8 @@ def _user_errors() -> Iterator[None]:
     except KeyboardInterrupt:
         _fail("interrupted; nothing written")
     except (ValueError, OSError) as exc:  # engine refusals, config errors, unreadable files
+        if os.environ.get("POSEFIX_DEBUG"):
+            raise
         _fail(f"{type(exc).__name__}: {exc}" if type(exc).__name__ not in ("ValueError",) else str(exc))
     finally:
         warnings.showwarning = old
@@ -138,8 +142,10 @@ def correct_command(
             if val is not None and not val > 0:
                 raise CommandError(f"{name} must be a positive number, got {val}")
         o = _parse_origin(origin)
-        from posefix.io import detect_format, read_edits, read_run, write_run
+        from posefix.io import WRITE_FORMATS, detect_format, read_edits, read_run, write_run
 
+        if fmt is not None and fmt not in WRITE_FORMATS:
+            raise CommandError(f"--format: cannot write {fmt!r} (writable: {', '.join(WRITE_FORMATS)})")
         out_fmt = fmt or detect_format(output, for_writing=True)
         _check_output_path(output, [run_path] + ([edits_path] if edits_path else []))
         steps = _Steps(["read", "edits", "correct", "write"], quiet)
@@ -308,8 +314,10 @@ def convert_command(
     """Convert a pose run between formats (orientation derived from the track when IN has none)."""
     with _user_errors():
         o = _parse_origin(origin)
-        from posefix.io import detect_format, read_run, write_run
+        from posefix.io import WRITE_FORMATS, detect_format, read_run, write_run
 
+        if output_format is not None and output_format not in WRITE_FORMATS:
+            raise CommandError(f"--to: cannot write {output_format!r} (writable: {', '.join(WRITE_FORMATS)})")
         out_fmt = output_format or detect_format(output_path, for_writing=True)
         _check_output_path(output_path, [input_path])
         run = read_run(input_path, fmt=input_format, origin=o)

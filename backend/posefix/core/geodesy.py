@@ -35,6 +35,8 @@ __all__ = [
     "geodetic_to_enu",
     "enu_to_geodetic",
     "rotation_local_enu_to_origin_enu",
+    "quat_ecef_to_enu",
+    "quat_local_enu_to_origin_enu",
 ]
 
 WGS84_A_M = 6378137.0  # semi-major axis, metres
@@ -230,3 +232,40 @@ def rotation_local_enu_to_origin_enu(lat_deg, lon_deg, origin: OriginLike) -> np
     r_local = rotation_ecef_to_enu(lat_deg, lon_deg)  # ECEF -> local ENU
     # origin_ENU <- ECEF <- local_ENU
     return o.r_ecef_to_enu @ np.swapaxes(r_local, -1, -2)
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a ⊗ b of (…, 4) arrays (w, x, y, z)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def quat_ecef_to_enu(lat_deg, lon_deg) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of ``rotation_ecef_to_enu``: shape (n, 4) or (4,).
+
+    ``R_ECEF->ENU = Rx(-(π/2 - φ)) Rz(-(λ + π/2))`` (active rotations): turn the meridian
+    of λ so east lies on x, then tip the pole down onto the local up axis.
+    """
+    lat = np.radians(np.asarray(lat_deg, dtype=float))
+    lon = np.radians(np.asarray(lon_deg, dtype=float))
+    ax = -0.5 * (0.5 * np.pi - lat)
+    az = -0.5 * (lon + 0.5 * np.pi)
+    zero = np.zeros(np.broadcast(ax, az).shape)
+    qx = np.stack(np.broadcast_arrays(np.cos(ax), np.sin(ax), zero, zero), axis=-1)
+    qz = np.stack(np.broadcast_arrays(np.cos(az), zero, zero, np.sin(az)), axis=-1)
+    return _quat_mul(qx, qz)
+
+
+def quat_local_enu_to_origin_enu(lat_deg, lon_deg, origin: OriginLike) -> np.ndarray:
+    """Quaternions (n, 4) of ``rotation_local_enu_to_origin_enu`` (cheaper than matrices)."""
+    o = as_origin(origin)
+    q_o = quat_ecef_to_enu(o.lat_deg, o.lon_deg)
+    q_l = quat_ecef_to_enu(lat_deg, lon_deg)
+    q_l_inv = q_l * np.array([1.0, -1.0, -1.0, -1.0])
+    return _quat_mul(q_o, q_l_inv)

@@ -41,8 +41,8 @@ from typing import Callable
 
 import numpy as np
 
-from posefix.core.geodesy import EnuOrigin, as_origin, enu_to_geodetic, geodetic_to_enu, rotation_local_enu_to_origin_enu
-from posefix.core.rotations import matrix_to_quat, quat_to_matrix
+from posefix.core.geodesy import EnuOrigin, as_origin, enu_to_geodetic, geodetic_to_enu, quat_local_enu_to_origin_enu
+from posefix.core.rotations import quat_conjugate, quat_multiply
 from posefix.core.run import PoseRun
 
 __all__ = ["REGIMES", "Simulation", "SimEdit", "simulate", "load_osm_graph", "OsmGraph"]
@@ -333,8 +333,9 @@ def _rpy_to_quat(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.nda
 
 def _quat_origin_to_local(q_origin: np.ndarray, lat: np.ndarray, lon: np.ndarray, origin: EnuOrigin) -> np.ndarray:
     """Re-express body->origin-ENU quaternions as body->local-ENU (exact for long drives)."""
-    r = rotation_local_enu_to_origin_enu(lat, lon, origin)  # local -> origin
-    return matrix_to_quat(np.swapaxes(r, -1, -2) @ quat_to_matrix(q_origin))
+    q_local_to_origin = quat_local_enu_to_origin_enu(lat, lon, origin)
+    q = quat_multiply(quat_conjugate(q_local_to_origin), q_origin)
+    return q * np.where(q[:, :1] < 0, -1.0, 1.0)
 
 
 # ----------------------------------------------------------------------------- errors

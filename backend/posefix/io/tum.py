@@ -14,16 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from posefix.core.geodesy import (
-    OriginLike,
-    as_origin,
-    enu_to_geodetic,
-    geodetic_to_enu,
-    rotation_local_enu_to_origin_enu,
-)
+from posefix.core.geodesy import OriginLike, as_origin, enu_to_geodetic, geodetic_to_enu, quat_local_enu_to_origin_enu
+from posefix.core.rotations import quat_conjugate, quat_multiply
 from posefix.core.run import PoseRun
 from posefix.io._build import build_run
-from posefix.io._quat import matrix_to_quat, quat_to_matrix
 from posefix.io.atomic import atomic_write
 from posefix.io.errors import RunFormatError
 
@@ -80,12 +74,9 @@ def read_tum(path: str | os.PathLike, origin: OriginLike | None) -> PoseRun:
     bad = np.flatnonzero(norm < 1e-12)
     if bad.size:
         raise RunFormatError(path, int(lines[bad[0]]), "qx,qy,qz,qw", "zero quaternion (no rotation defined)")
-    # body -> origin ENU  ==>  body -> local ENU = (local <- origin) (origin <- body)
-    r_local_to_origin = rotation_local_enu_to_origin_enu(lat, lon, o)
-    r_body_to_origin = quat_to_matrix(q_origin)
-    q = matrix_to_quat(np.swapaxes(r_local_to_origin, -1, -2) @ r_body_to_origin)
-    # keep the file's unit-norm check meaningful: carry the file's norm through validation
-    q = q * norm[:, None]
+    # body -> origin ENU  ==>  body -> local ENU = (local <- origin) ⊗ (origin <- body);
+    # the product keeps the file's norm, so the unit-norm check still sees it.
+    q = quat_multiply(quat_conjugate(quat_local_enu_to_origin_enu(lat, lon, o)), q_origin)
     return build_run(
         path, vals[:, 0], lat, lon, alt, q, line_of_row=lambda i: int(lines[i]),
         field_names={"t_s": "timestamp", "lat_deg": "tx,ty,tz", "lon_deg": "tx,ty,tz", "alt_m": "tz",
@@ -97,8 +88,7 @@ def write_tum(run: PoseRun, path: str | os.PathLike, origin: OriginLike | None =
     """Write ``run`` as TUM in ENU at ``origin`` (default: the first sample), atomically."""
     o = as_origin(origin) if origin is not None else as_origin((run.lat_deg[0], run.lon_deg[0], run.alt_m[0]))
     p = geodetic_to_enu(run.lat_deg, run.lon_deg, run.alt_m, o)
-    r_local_to_origin = rotation_local_enu_to_origin_enu(run.lat_deg, run.lon_deg, o)
-    q = matrix_to_quat(r_local_to_origin @ quat_to_matrix(run.q_body_to_enu_wxyz))
+    q = quat_multiply(quat_local_enu_to_origin_enu(run.lat_deg, run.lon_deg, o), run.q_body_to_enu_wxyz)
     table = np.column_stack([run.t_s, p, q[:, 1:4], q[:, 0]])
     with atomic_write(path, "w") as fh:
         fh.write(f"# posefix TUM export; frame: ENU at lat={o.lat_deg!r} lon={o.lon_deg!r} alt={o.alt_m!r}\n")

@@ -1,0 +1,91 @@
+"""Benchmark the engine's I/O path on a one-hour 100 Hz run (360,001 samples, 36 edits).
+
+    python -m benchmarks.engine_io [--duration-s 3600] [--rate-hz 100]
+
+Prints one table: each figure beside its baseline or target, with the ratio (ours /
+baseline; below 1.0 is better). Timings are wall-clock on this machine, best of a few
+repeats, so they move with the load other processes put on it.
+
+- simulate: ``posefix.core.simulate.simulate`` (target: "a couple of seconds").
+- CSV parse: ``posefix.io.read_run`` vs the naive baseline (stdlib ``csv`` reading every
+  row and converting fields one by one) and the issue's target (well under 1 s).
+- CSV write: ``posefix.io.write_run``.
+- posefix correct: the whole process, CSV in and out (target 2.5 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def best_of(fn, repeats: int = 3) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def naive_parse(path: Path) -> int:
+    rows = 0
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        next(reader)
+        for row in reader:
+            [float(v) if v else float("nan") for v in row]
+            rows += 1
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration-s", type=float, default=3600.0)
+    ap.add_argument("--rate-hz", type=float, default=100.0)
+    args = ap.parse_args()
+
+    from posefix.core.simulate import simulate
+    from posefix.io import EditSet, Move, read_run, write_edits, write_run
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        holder = {}
+
+        def sim():
+            holder["sim"] = simulate(args.duration_s, args.rate_hz, 100.0, seed=1, regime="mixed")
+
+        t_sim = best_of(sim, 1)
+        s = holder["sim"]
+        rows.append(("simulate (mixed regime)", t_sim, 2.0, "target"))
+        t_write = best_of(lambda: write_run(s.run, d / "run.csv"))
+        write_edits(EditSet(moves=[Move(e.t_s, e.lat_deg, e.lon_deg) for e in s.edits]), d / "edits.json")
+        t_read = best_of(lambda: read_run(d / "run.csv"))
+        t_naive = best_of(lambda: naive_parse(d / "run.csv"), 1)
+        rows.append(("CSV parse vs stdlib csv", t_read, t_naive, "baseline"))
+        rows.append(("CSV parse vs target", t_read, 1.0, "target"))
+        rows.append(("CSV write", t_write, t_naive, "baseline (naive parse)"))
+        cmd = [sys.executable, "-c", "from posefix.cli import main; main()", "correct", str(d / "run.csv"),
+               "--edits", str(d / "edits.json"), "--output", str(d / "out.csv"), "--quiet"]
+
+        def run_cli():
+            subprocess.run(cmd, check=True)
+
+        t_cli = best_of(run_cli, 3)
+        rows.append(("posefix correct, whole process", t_cli, 2.5, "target"))
+        n = s.run.n
+
+    print(f"\nengine I/O benchmark: {n} samples, {len(s.edits)} edits\n")
+    print(f"{'measure':<34}{'ours (s)':>10}{'ref (s)':>10}{'ratio':>8}  ref")
+    for name, ours, ref, kind in rows:
+        print(f"{name:<34}{ours:>10.3f}{ref:>10.3f}{ours / ref:>8.2f}  {kind}")
+
+
+if __name__ == "__main__":
+    main()
