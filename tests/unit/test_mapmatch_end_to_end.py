@@ -1,0 +1,75 @@
+"""End to end on one real walk of the shared floor: build, save/load, track (API and CLI), evaluate."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from posefix.mapmatch import build_model, load_model, read_walk, save_model, track_walk
+from posefix.mapmatch.evaluate import evaluate_track
+from posefix.mapmatch.model import ModelFormatError
+
+REPO = Path(__file__).resolve().parents[2]
+FLOOR = Path(os.environ.get("POSEFIX_SHARED_DATA", REPO.parent / "shared" / "data")) / "indoor-site1-F1"
+WALK = FLOOR / "walks" / "5dd9e7aac5b77e0006b1732b.txt"
+
+
+@pytest.fixture(scope="module")
+def model():
+    if not WALK.is_file():
+        pytest.fail(f"shared data missing at {FLOOR}: set POSEFIX_SHARED_DATA")
+    return build_model(FLOOR)
+
+
+def test_model_file_round_trip(model, tmp_path):
+    size = save_model(model, tmp_path / "m.npz")
+    assert 20_000 < size < 1_000_000
+    m2 = load_model(tmp_path / "m.npz")
+    assert np.array_equal(m2.graph.ij, model.graph.ij)
+    assert np.array_equal(m2.graph.succ, model.graph.succ)
+    assert m2.graph.georef == model.graph.georef
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(ModelFormatError, match="bad.npz"):
+        load_model(tmp_path / "bad.npz")
+
+
+def test_track_real_walk_beats_dead_reckoning(model):
+    walk = read_walk(WALK)
+    start = tuple(walk.waypoints[0, 1:3])
+    res = track_walk(model, walk, start_xy_m=start)
+    e_crf = evaluate_track(walk.waypoints, res.t_ms, res.p_xy_m, skip_first=True).err_wp_m
+    e_dr = evaluate_track(walk.waypoints, res.t_ms, res.dr_xy_m, skip_first=True).err_wp_m
+    assert e_crf.mean() < 2.0 and e_crf.mean() < e_dr.mean()
+    # Every matched position is a reachable vertex, and every move an allowed transition.
+    g = model.graph
+    for a, b in zip(res.vertex[:-1], res.vertex[1:]):
+        assert b in g.succ[a]
+    assert np.all(res.sigma_major_m >= res.sigma_minor_m)
+
+
+def test_cli_build_track_evaluate(tmp_path):
+    from posefix.cli import _register, app
+
+    _register()
+    r = CliRunner()
+    out = r.invoke(app, ["mapmatch", "build", "--floor", str(FLOOR), "--output", str(tmp_path / "m.npz")])
+    assert out.exit_code == 0, out.output
+    assert "vertices" in out.output and "KiB" in out.output
+    out = r.invoke(app, ["mapmatch", "track", str(WALK), "--model", str(tmp_path / "m.npz"),
+                         "--start", "81.317215,93.31349", "--output", str(tmp_path / "t.csv")])
+    assert out.exit_code == 0, out.output
+    lines = (tmp_path / "t.csv").read_text().splitlines()
+    assert lines[0] == "t,x,y,lat,lon,sigma_major_m,sigma_minor_m,angle_deg"
+    lat, lon = (float(v) for v in lines[1].split(",")[3:5])
+    assert 30.29 < lat < 30.30 and 120.07 < lon < 120.08  # Hangzhou, from the geo-reference
+    out = r.invoke(app, ["mapmatch", "evaluate", str(WALK), str(tmp_path / "t.csv"), "--skip-first"])
+    assert out.exit_code == 0 and "waypoints: n=6" in out.output
+    # Bad input: one error line naming the file, nothing written.
+    (tmp_path / "bad.txt").write_text("1000\tTYPE_WAYPOINT\tx\n")
+    out = r.invoke(app, ["mapmatch", "track", str(tmp_path / "bad.txt"), "--model", str(tmp_path / "m.npz"),
+                         "--output", str(tmp_path / "t2.csv")])
+    assert out.exit_code == 1 and "bad.txt:1" in out.output
+    assert not (tmp_path / "t2.csv").exists()
+    assert not list(tmp_path.glob(".posefix-*"))
