@@ -182,6 +182,7 @@ def build_basemap(
             for tile_id, data in tiles:
                 writer.write_tile(tile_id, data)
             writer.finalize(header, metadata)
+        os.chmod(tmp_name, 0o644)  # mkstemp makes it owner-only; the server may run as another user
         os.replace(tmp_name, out_path)
     except BaseException:
         Path(tmp_name).unlink(missing_ok=True)

@@ -59,8 +59,8 @@ def basemap_layers(source_id: str, visible: bool = True) -> list[dict[str, Any]]
             prefix + "paths", "line", source_id, "roads", minzoom=15,
             filter=["in", ["get", "class"], ["literal", list(_PATH_CLASSES)]],
             layout=line_layout,
-            paint={"line-color": "#fa8072", "line-width": _zoom_width(0.5, 2.0), "line-dasharray": [2, 1.5],
-                   "line-opacity": 0.8},
+            paint={"line-color": "#e9967a", "line-width": _zoom_width(0.5, 1.8), "line-dasharray": [2, 1.5],
+                   "line-opacity": 0.6},
         ),
     ]
     # Casings first, all of them under every fill, so crossings merge into junctions.
