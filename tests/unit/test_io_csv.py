@@ -162,3 +162,14 @@ def test_unknown_extension_is_refused(tmp_path):
     p.write_text("x")
     with pytest.raises(RunFormatError, match="unknown file extension"):
         read_run(p)
+
+
+def test_bom_crlf_and_spaced_header_names(tmp_path):
+    p = tmp_path / "win.csv"
+    p.write_bytes(b"\xef\xbb\xbft, lat ,lon,alt,qw,qx,qy,qz\r\n0,60,24,0,1,0,0,0\r\n\r\n1,60.0001,24,0,1,0,0,0\r\n")
+    run = read_run(p)
+    assert run.n == 2 and run.lat_deg[1] == 60.0001
+    p.write_bytes(p.read_bytes() + b"2,60.0002,24,0,x,0,0,0\r\n")
+    with pytest.raises(RunFormatError) as info:
+        read_run(p)
+    assert (info.value.line, info.value.field) == (5, "qw")

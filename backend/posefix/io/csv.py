@@ -138,7 +138,8 @@ def read_csv(path: str | os.PathLike) -> PoseRun:
     try:
         table = pacsv.read_csv(
             pa.py_buffer(data),
-            read_options=pacsv.ReadOptions(use_threads=True, block_size=1 << 24),
+            # our own parse of the header (stripped names, BOM removed) names the columns
+            read_options=pacsv.ReadOptions(use_threads=True, block_size=1 << 24, column_names=names, skip_rows=1),
             parse_options=pacsv.ParseOptions(newlines_in_values=False),
             convert_options=pacsv.ConvertOptions(
                 column_types=column_types, null_values=NULL_VALUES, strings_can_be_null=False,
