@@ -60,12 +60,14 @@ def test_every_regime_is_plausible(regime):
         assert 0.003 < frac < 0.1  # bursts of ~50 m outliers
     else:
         assert horiz.max() < 35.0
-    if regime in ("canyon", "mixed"):
+    if regime in ("canyon", "canyon_ins", "mixed"):
         # minutes-long offsets of 5-20 m: the 60 s moving mean of the GNSS error reaches them
         k = 600
         mean60 = np.column_stack([np.convolve(g_err[:, i], np.ones(k) / k, mode="valid") for i in range(2)])
         m = np.hypot(mean60[:, 0], mean60[:, 1])
         assert 4.0 < m.max() < 25.0
+    if regime == "canyon_ins":
+        assert np.sqrt(np.mean(pose_err[:, :2] ** 2)) < 6.0  # the pose bridged the offsets
     if regime == "white":
         assert 2.0 < np.sqrt(np.mean(g_err[:, 0] ** 2)) < 3.0  # 2.5 m per axis
     if regime == "drift":

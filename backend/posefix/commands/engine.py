@@ -248,7 +248,7 @@ def simulate_command(
     rate_hz: float = typer.Option(100.0, "--rate-hz", min=0.1, help="Pose sample rate, Hz."),
     edit_every_s: float = typer.Option(100.0, "--edit-every-s", min=0.0, help="One edit (true position + click noise) every this many seconds, at the middle of each interval; 0 for none."),
     seed: int = typer.Option(1, "--seed", help="Random seed: the same options give the same drive."),
-    regime: str = typer.Option("mixed", "--regime", help="GNSS error regime: white (noise), drift (pose bias moving a few cm/s, raw GNSS beside), canyon (offset jumps of 5-20 m for minutes), outliers (50 m bursts), mixed (canyon + outliers + drift)."),
+    regime: str = typer.Option("mixed", "--regime", help="GNSS error regime: white (noise), drift (pose bias moving a few cm/s, raw GNSS beside), canyon (offset jumps of 5-20 m for minutes, inherited by the pose), canyon_ins (the same jumps in the raw GNSS only; the pose bridged them), outliers (50 m bursts), mixed (canyon + outliers + drift)."),
     osm: Optional[Path] = typer.Option(None, "--osm", metavar="FILE.pbf", help="Drive along the streets of this OpenStreetMap extract (e.g. ../shared/data/osm/helsinki.osm.pbf)."),
     click_noise_m: float = typer.Option(0.5, "--click-noise-m", min=0.0, help="Operator click error of each edit, metres (1 sigma per horizontal axis)."),
     gnss_rate_hz: float = typer.Option(10.0, "--gnss-rate-hz", min=0.01, help="Raw GNSS fix rate, Hz (held between fixes)."),

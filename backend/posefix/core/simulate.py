@@ -24,6 +24,9 @@ Regimes (``REGIMES``):
   low-passed 30 s); raw GNSS with white noise in the ``gnss_*`` columns.
 - ``canyon``: urban-canyon offset jumps of 5-20 m lasting 1-5 minutes in the GNSS, which the
   pose inherits through a 10 s low-pass (INS filters follow a biased fix).
+- ``canyon_ins``: the same canyon offsets in the raw GNSS only; the reported pose is a
+  GNSS/INS solution that bridged them (smooth 3 m wander as in ``white``), so a location
+  term that trusts the GNSS would pull a good run onto a biased track (section 6's case).
 - ``outliers``: 50 m GNSS outliers in bursts of 1-3 s (about 3 % of fixes) on top of white
   noise; the pose wanders as in ``white`` (its filter gated them out).
 - ``mixed``: canyon offsets + outliers in the GNSS, pose = inherited canyon offsets + drift.
@@ -47,7 +50,7 @@ from posefix.core.run import PoseRun
 
 __all__ = ["REGIMES", "Simulation", "SimEdit", "simulate", "load_osm_graph", "OsmGraph"]
 
-REGIMES = ("white", "drift", "canyon", "outliers", "mixed")
+REGIMES = ("white", "drift", "canyon", "canyon_ins", "outliers", "mixed")
 DS_M = 0.5  # arc-length step of the path, metres
 V_MIN_MPS, V_MAX_MPS = 5.0, 20.0
 A_LAT_MAX_MPS2 = 2.5  # comfortable lateral acceleration that sets corner speeds
@@ -378,7 +381,7 @@ def _errors(rng: np.random.Generator, regime: str, t_rel_s: np.ndarray, gnss_rat
     t_fix = np.arange(0.0, dur + 1.0 / gnss_rate_hz, 1.0 / gnss_rate_hz)
     white = rng.standard_normal((t_fix.size, 3)) * np.array([2.5, 2.5, 4.0])
     gnss_fix = white.copy()
-    if regime in ("white", "outliers"):
+    if regime in ("white", "outliers", "canyon_ins"):
         # a smooth wander (OU low-passed over 20 s): metres over minutes, cm over a second
         pose_c = _lowpass(_ou(rng, t_c.size, dt_c, 3.0, 120.0, 3), dt_c, 20.0) * np.array([1.0, 1.0, 0.6])
     elif regime == "drift":
@@ -393,6 +396,8 @@ def _errors(rng: np.random.Generator, regime: str, t_rel_s: np.ndarray, gnss_rat
             pose_c = pose_c + _lowpass(_ou(rng, t_c.size, dt_c, 4.0, 300.0, 3), dt_c, 30.0) * np.array([1.0, 1.0, 0.5])
     else:
         raise ValueError(f"unknown regime {regime!r} (known: {', '.join(REGIMES)})")
+    if regime == "canyon_ins":
+        gnss_fix += _coarse_to_fine(t_c, _canyon_offsets(rng, t_c), t_fix)
     if regime in ("outliers", "mixed"):
         gnss_fix += _outliers(rng, t_fix)
     # receivers report the last fix until the next one (zero-order hold)
