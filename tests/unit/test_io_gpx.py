@@ -80,6 +80,9 @@ OK2 = '<trkpt lat="60.1701" lon="24.94"><time>2024-05-01T10:00:01Z</time></trkpt
     (OK1 + OK2 + '<trkpt lat="95" lon="24.94"><time>2024-05-01T10:00:02Z</time></trkpt>\n', 6, "lat", "outside [-90, 90]"),
     (OK1 + OK2 + '<trkpt lat="60.17" lon="24.94"><time>2024-05-01T10:00:00Z</time></trkpt>\n', 6, "time", "not strictly increasing"),
     (OK1 + "<trkpt lat=", 5, None, "not well-formed"),
+    (OK1 + '<trkpt lat="abc" lon="24.94"><time>2024-05-01T10:00:01Z</time></trkpt>\n', 5, "lat", "not a number"),
+    (OK1 + OK2 + '<trkpt lat="60.17" lon="24.94">\n<ele>high</ele><time>2024-05-01T10:00:02Z</time></trkpt>\n', 7, "ele", "not a number"),
+    (OK1 + '<trkpt lat="60.17" lon="24.94"><time>yesterday</time></trkpt>\n', 5, "time", "no (valid) <time>"),
     ("", None, "trkpt", "empty"),
 ])
 def test_bad_gpx_names_line_and_field(tmp_path, points, line, field, fragment):

@@ -54,6 +54,68 @@ def _point_lines(data: bytes, kind: str) -> np.ndarray:
     return np.searchsorted(nl, np.asarray(starts)) + 1
 
 
+def _locate_bad_value(data: bytes) -> tuple[int, str, str] | None:
+    """Find the first point with an unreadable lat/lon/ele/time: (line, field, message).
+
+    Runs only after gpxpy refused the document (its errors carry no line numbers). The
+    document has already passed the defused check, so expat sees no DTD.
+    """
+    import xml.parsers.expat
+
+    from posefix.io._timeconv import parse_iso_utc
+
+    found: list[tuple[int, str, str]] = []
+    stack: list[str] = []
+    text: list[str] = []
+    parser = xml.parsers.expat.ParserCreate()
+
+    def local(name: str) -> str:
+        return name.rsplit(":", 1)[-1]
+
+    def start(name, attrs):
+        tag = local(name)
+        stack.append(tag)
+        text.clear()
+        if found or tag not in ("trkpt", "rtept", "wpt"):
+            return
+        for key in ("lat", "lon"):
+            value = attrs.get(key)
+            try:
+                float(value)
+            except (TypeError, ValueError):
+                found.append((parser.CurrentLineNumber, key, f"not a number: {value!r}"))
+                return
+
+    def chars(data_):
+        text.append(data_)
+
+    def end(name):
+        tag = stack.pop() if stack else ""
+        parent = stack[-1] if stack else ""
+        if found or parent not in ("trkpt", "rtept", "wpt"):
+            return
+        value = "".join(text).strip()
+        if tag == "ele":
+            try:
+                float(value)
+            except ValueError:
+                found.append((parser.CurrentLineNumber, "ele", f"not a number: {value!r}"))
+        elif tag == "time":
+            try:
+                parse_iso_utc(value)
+            except ValueError:
+                found.append((parser.CurrentLineNumber, "time", f"not an ISO 8601 time: {value!r}"))
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = end
+    parser.CharacterDataHandler = chars
+    try:
+        parser.Parse(data, True)
+    except xml.parsers.expat.ExpatError:
+        return None
+    return found[0] if found else None
+
+
 def _pose_extension(point) -> dict[str, str] | None:
     for ext in getattr(point, "extensions", None) or []:
         if ext.tag.split("}")[-1] == "pose" and "qw" in ext.attrib:
@@ -75,6 +137,9 @@ def read_gpx(path: str | os.PathLike) -> PoseRun:
     try:
         doc = gpxpy.parse(data.decode("utf-8-sig"))
     except (gpxpy.gpx.GPXException, UnicodeDecodeError, ValueError) as exc:
+        located = _locate_bad_value(data)
+        if located is not None:
+            raise RunFormatError(path, *located) from None
         raise RunFormatError(path, None, None, f"not a valid GPX document: {exc}") from None
     points = [p for trk in doc.tracks for seg in trk.segments for p in seg.points]
     kind = "trkpt"
@@ -100,7 +165,7 @@ def read_gpx(path: str | os.PathLike) -> PoseRun:
     gnss = np.full((3, n), np.nan) if has_gnss else None
     for i, p in enumerate(points):
         if p.time is None:
-            raise RunFormatError(path, line_of_row(i), "time", "track point has no <time>")
+            raise RunFormatError(path, line_of_row(i), "time", "track point has no (valid) <time>")
         t[i] = datetime_to_s(p.time)
         lat[i], lon[i] = p.latitude, p.longitude
         if p.elevation is not None:
