@@ -76,7 +76,7 @@ OK2 = '<trkpt lat="60.1701" lon="24.94"><time>2024-05-01T10:00:01Z</time></trkpt
 
 
 @pytest.mark.parametrize("points,line,field,fragment", [
-    (OK1 + '<trkpt lat="60.17" lon="24.94"></trkpt>\n', 5, "time", "no <time>"),
+    (OK1 + '<trkpt lat="60.17" lon="24.94"></trkpt>\n', 5, "time", "no (valid) <time>"),
     (OK1 + OK2 + '<trkpt lat="95" lon="24.94"><time>2024-05-01T10:00:02Z</time></trkpt>\n', 6, "lat", "outside [-90, 90]"),
     (OK1 + OK2 + '<trkpt lat="60.17" lon="24.94"><time>2024-05-01T10:00:00Z</time></trkpt>\n', 6, "time", "not strictly increasing"),
     (OK1 + "<trkpt lat=", 5, None, "not well-formed"),
