@@ -29,7 +29,7 @@ from posefix.core import terms as T
 from posefix.core.config import ConfigError, CorrectionConfig
 from posefix.core.drift import DriftEstimate, estimate_drift, no_drift
 from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes, select_keyframes
-from posefix.core.propagate import propagate_corrections
+from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
 from posefix.core.solver import SolverResult, solve
@@ -76,6 +76,7 @@ class Solution:
     x: np.ndarray  # (6k_active,) state over the active (non-removed) keyframes
     active: np.ndarray  # (k,) bool: keyframe took part in the optimisation
     flags: list[Refusal] = field(default_factory=list)
+    terms: T.Terms | None = None  # the problem that was solved (for diagnostics, benchmarks)
 
 
 @dataclass(frozen=True)
@@ -258,7 +259,7 @@ class Problem:
             reported_p_enu_m=self.p_enu_m[index], reported_q_wxyz=self.anchored_quat(index),
             edited=edited, deleted=deleted,
         )
-        return Solution(kfs, result, drift, x, active, list(flags or []))
+        return Solution(kfs, result, drift, x, active, list(flags or []), terms)
 
     def _warm_state(self, act_rows: np.ndarray, p_rep: np.ndarray, warm) -> np.ndarray | None:
         """Initial state from a previous solution: its corrections interpolated in time."""
@@ -350,17 +351,16 @@ class Problem:
         n = self.run.n
         act = kfs.index[sol.active]
         c_kf = rot.quat_multiply(kfs.q_wxyz[sol.active], rot.quat_conjugate(kfs.reported_q_wxyz[sol.active]))
-        p_new, c_s = propagate_corrections(
+        p_new, seg, alpha = propagate_corrections(
             self.run.t_s, self.p_enu_m, act, kfs.p_enu_m[sol.active], c_kf,
             self.cfg.propagation.mode, self.along_m,
         )
-        # the correction is a rotation of the anchored frame; express it in each sample's own
-        # ENU (the frames of neighbouring samples differ by micro-radians, so the segment's
-        # keyframe frame is used for all its samples)
-        seg = np.clip(np.searchsorted(act, np.arange(n), side="right") - 1, 0, len(act) - 1)
-        r = self.local_to_anchor(act)[seg]
-        c_local = rot.quat_multiply(rot.quat_conjugate(r), rot.quat_multiply(c_s, r))
-        q_new = rot.normalize_quat(rot.quat_multiply(c_local, self._q_local))
+        # the correction is a rotation of the anchored frame; each sample's quaternion is
+        # relative to ENU at its own position, so express each keyframe's correction in its
+        # own ENU (neighbouring keyframes' frames differ by micro-radians) and interpolate those
+        r = self.local_to_anchor(act)
+        c_local = rot.quat_multiply(rot.quat_conjugate(r), rot.quat_multiply(c_kf, r))
+        q_new = interpolate_rotations(c_local, seg, alpha, then_multiply_wxyz=self._q_local)
         lat, lon, alt = geodesy.enu_to_geodetic(p_new, self.origin)
         out = self.run.with_poses(lat, lon, alt, q_new)
         deleted_rows = rows_of_keyframes(kfs.index, n, np.flatnonzero(kfs.deleted))

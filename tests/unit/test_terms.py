@@ -65,7 +65,7 @@ def test_reported_poses_cost_nothing_but_location_and_user():
 
 
 def test_normal_equations_equal_dense_products():
-    terms = random_terms(k=9)
+    terms = random_terms(k=9, loss="none")  # with no robust loss the location model is exactly J^T J
     x = T.initial_state(terms) + np.random.default_rng(2).normal(0, 0.1, 54)
     ev = T.evaluate(terms, x)
     J = T.sparse_jacobian(terms, ev).toarray()
@@ -79,3 +79,26 @@ def test_normal_equations_equal_dense_products():
     # nothing outside the band
     mask = np.abs(np.subtract.outer(np.arange(54) // 6, np.arange(54) // 6)) > 1
     assert np.all(H[mask] == 0)
+
+
+def test_location_hessian_is_the_exact_loss_hessian_where_convex():
+    terms = random_terms(k=5, loss="cauchy")
+    x = T.initial_state(terms).reshape(-1, 6)
+    x[:, :3] = terms.loc_g_m + 0.3  # small residuals: the Cauchy loss is convex there
+    x = x.ravel()
+
+    def loc_cost(p_flat):
+        xx = x.reshape(-1, 6).copy()
+        xx[:, :3] = p_flat.reshape(-1, 3)
+        return T.evaluate(terms, xx.ravel(), with_jac=False).costs()["location"]
+
+    p0 = x.reshape(-1, 6)[:, :3].ravel()
+    h = 1e-4
+    H = T.location_hessian(terms, p0.reshape(-1, 3))
+    for i in range(2):
+        for a in range(3):
+            for b in range(3):
+                da = np.zeros_like(p0); da[3 * i + a] = h
+                db = np.zeros_like(p0); db[3 * i + b] = h
+                num = (loc_cost(p0 + da + db) - loc_cost(p0 + da - db) - loc_cost(p0 - da + db) + loc_cost(p0 - da - db)) / (4 * h * h)
+                assert abs(num - H[i, a, b]) < 1e-5

@@ -80,7 +80,7 @@ class PropagationConfig:
 class SolverConfig:
     method: str = "banded"
     max_iterations: int = 100
-    ftol: float = 1e-12
+    ftol: float = 1e-10
 
 
 _CHOICES = {

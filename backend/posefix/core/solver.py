@@ -18,6 +18,7 @@ Both return the solution and a ``SolverResult``.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -64,6 +65,7 @@ class SolverResult:
         }
 
 
+@functools.lru_cache(maxsize=8)
 def _band_index(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where the upper triangles of D blocks and all of U blocks go in the (12, 6k) band."""
     a, b = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
@@ -105,7 +107,7 @@ def solve_banded(
     terms: T.Terms,
     x0: np.ndarray | None = None,
     max_iterations: int = 100,
-    ftol: float = 1e-12,
+    ftol: float = 1e-10,
     initial_lambda: float = 1e-6,
 ) -> tuple[np.ndarray, SolverResult]:
     """Levenberg-Marquardt on the banded normal equations (fast path)."""
@@ -210,7 +212,7 @@ def solve_scipy(
     )
 
 
-def solve(terms: T.Terms, x0=None, method: str = "banded", max_iterations: int = 100, ftol: float = 1e-12):
+def solve(terms: T.Terms, x0=None, method: str = "banded", max_iterations: int = 100, ftol: float = 1e-10):
     """Dispatch to the configured solver path."""
     if method == "banded":
         return solve_banded(terms, x0, max_iterations=max_iterations, ftol=ftol)
