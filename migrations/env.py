@@ -16,6 +16,7 @@ import posefix.runs.models  # noqa: F401
 import posefix.edits.models  # noqa: F401
 import posefix.jobs.models  # noqa: F401
 import posefix.tiles.models  # noqa: F401
+import posefix.tasks.models  # noqa: F401
 
 config = context.config
 target_metadata = Base.metadata

@@ -1,0 +1,87 @@
+"""Worker jobs of the tasks domain (registered with web-core's job registry):
+
+- ``tasks.evaluate``: solve a submission's edits with the engine, store the corrected keyframe
+  track, score it against the truth on gold runs (``posefix.core.evaluate``), then update the
+  run's consensus and conflicts;
+- ``tasks.merge``: submit the approved/merged edits as a new revision of the run (the
+  ``revision`` job then writes it);
+- ``tasks.maintain``: expire leases, auto-approve, expire tasks; re-enqueues itself.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+import numpy as np
+
+from posefix.core.evaluate import evaluate
+from posefix.db import utcnow
+from posefix.jobs import repository as jobs
+from posefix.jobs.registry import JobContext, PermanentJobError, register
+from posefix.runs import correction, storage
+from posefix.runs import repository as runs_repo
+from posefix.runs.models import Run
+from posefix.tasks import clock, service
+from posefix.tasks.models import Assignment, GoldRun
+
+
+def _int(payload: dict[str, Any], key: str) -> int:
+    try:
+        return int(payload[key])
+    except (KeyError, TypeError, ValueError):
+        raise PermanentJobError(f"bad payload {payload!r}: needs integer {key}") from None
+
+
+@register(service.EVALUATE_JOB)
+def evaluate_submission(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
+    aid = _int(payload, "assignment_id")
+    fs = storage.FileStore(ctx.settings.files_dir)
+    with ctx.db.transaction(write=False) as s:
+        a = s.get(Assignment, aid)
+        if a is None or a.edit_set is None:
+            raise PermanentJobError(f"assignment {aid} has no submission")
+        run = s.get(Run, a.run_id)
+        rev0 = runs_repo.revision(s, a.run_id, 0)
+        if run is None or rev0 is None:
+            raise PermanentJobError(f"run {a.run_id} is gone")
+        gold = s.get(GoldRun, a.run_id)
+        truth_file = gold.truth_file if gold is not None else None
+        edit_set, rules, name, derived, samples0 = dict(a.edit_set), dict(run.rules), run.name, run.orientation_derived, rev0.samples_file
+        run_id = run.id
+
+    def load() -> tuple[Any, Any]:
+        pose = storage.read_samples(fs, samples0, orientation_derived=derived, source=name)
+        return pose, correction.engine_config(ctx.settings, rules)
+
+    problem = correction.PROBLEMS.problem(run_id, rules, load)
+    ctx.progress(0.2, "optimising the submission")
+    sol = correction.solve(problem, edit_set)
+    lon, lat, _ = correction.keyframe_lonlatalt(problem, sol)
+    corrected = np.round(np.column_stack([lon, lat]), 8).tolist()
+    gold_error = None
+    if truth_file is not None:
+        ctx.progress(0.6, "scoring against the truth")
+        truth = storage.read_samples(fs, truth_file, orientation_derived=False, source=f"truth of {name}")
+        gold_error = float(evaluate(truth, problem.full_run(sol).run).horizontal.mean_m)
+    with ctx.db.transaction() as s:
+        service.record_evaluation(s, aid, corrected, gold_error, clock.now())
+    return {"assignment_id": aid, "gold_error_m": gold_error}
+
+
+@register(service.MERGE_JOB)
+def merge(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
+    trid = _int(payload, "task_run_id")
+    actor = payload.get("actor_id")
+    with ctx.db.transaction() as s:
+        return service.merge_task_run(s, ctx.settings, trid, int(actor) if actor else None, clock.now())
+
+
+@register(service.MAINTAIN_JOB)
+def maintain(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
+    with ctx.db.transaction() as s:
+        counts = service.maintain(s, clock.now())
+    with ctx.db.transaction() as s:
+        nxt = jobs.enqueue(s, service.MAINTAIN_JOB, {}, max_attempts=1000)
+        nxt.run_after = utcnow() + dt.timedelta(seconds=service.MAINTAIN_EVERY_S)
+    return counts

@@ -1,0 +1,111 @@
+"""The whole life of a task over HTTP on SQLite and PostgreSQL: create (idempotent), lease,
+submit two different corrections, conflict flagged, review, merged revision written."""
+
+from __future__ import annotations
+
+from tests.api.tasks_support import Env, env, task_body, truth_move  # noqa: F401
+
+
+def _setup(env: Env) -> tuple[int, int]:
+    run_id = env.import_run("drive-a", seed=11)
+    env.add_user("op1", "operator")
+    env.add_user("op2", "operator")
+    env.add_user("op3", "operator")
+    r = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], client_token="tok-1"))
+    assert r.status_code == 201, r.text
+    return run_id, r.json()["id"]
+
+
+def test_conflicting_corrections_are_flagged_reviewed_and_merged(env: Env) -> None:
+    run_id, task_id = _setup(env)
+    a1 = env.client("op1").post("/api/v1/tasks/next").json()["assignment"]
+    a2 = env.client("op2").post("/api/v1/tasks/next").json()["assignment"]
+    assert a1 and a2 and a1["run_id"] == a2["run_id"] == run_id and a1["id"] != a2["id"]
+    assert a1["lease_remaining_s"] == 600 and a1["task"]["instructions"].startswith("Drag")
+    third = env.client("op3").post("/api/v1/tasks/next").json()
+    assert third["assignment"] is None and third["message"] == "no work is available right now"
+
+    # the operator can now see the run (and only because of the assignment)
+    assert env.client("op1").get(f"/api/v1/runs/{run_id}").status_code == 200
+    assert env.client("op3").get(f"/api/v1/runs/{run_id}").status_code == 404
+
+    # op1 drags keyframes 10..12 onto the truth, op2 puts them 20 m east of it
+    m1 = [truth_move(env, run_id, k) for k in (10, 20, 30)]
+    m2 = [truth_move(env, run_id, k, error_east_m=20.0) for k in (10, 20, 30)]
+    r1 = env.client("op1").post(f"/api/v1/assignments/{a1['id']}/submit", json={"moves": m1, "comment": "on the road"})
+    assert r1.status_code == 200, r1.text
+    assert r1.json()["assignment"]["status"] == "submitted"
+    r2 = env.client("op2").post(f"/api/v1/assignments/{a2['id']}/submit", json={"moves": m2})
+    assert r2.status_code == 200, r2.text
+    env.drain()
+
+    task = env.client("admin").get(f"/api/v1/tasks/{task_id}").json()
+    assert task["status"] == "reviewable"
+    tr = task["runs"][0]
+    assert tr["status"] == "conflict"
+    kinds = {c["kind"] for c in tr["conflicts"]}
+    assert kinds == {"tracks_apart", "edits_apart"}
+    edit_conf = [c for c in tr["conflicts"] if c["kind"] == "edits_apart"]
+    assert sorted(c["index"] for c in edit_conf) == [10, 20, 30]
+    assert all(19.0 < c["distance_m"] < 21.0 for c in edit_conf)
+
+    queue = env.client("reviewer").get("/api/v1/review/queue").json()
+    assert [q["task_run_id"] for q in queue] == [tr["id"]] and queue[0]["status"] == "conflict"
+    view = env.client("reviewer").get(f"/api/v1/task-runs/{tr['id']}/review").json()
+    assert len(view["submissions"]) == 2 and len(view["disagreement_m"]) == len(view["reported"])
+    assert 19.0 < max(view["disagreement_m"]) < 21.5
+    assert [len(s["moves"]) for s in view["submissions"]] == [3, 3]
+
+    # operators cannot review, nobody reviews their own work
+    assert env.client("op1").post(f"/api/v1/assignments/{a2['id']}/review", json={"decision": "approve"}).status_code == 403
+    for aid in (a1["id"], a2["id"]):
+        r = env.client("reviewer").post(f"/api/v1/assignments/{aid}/review", json={"decision": "approve", "feedback": "ok"})
+        assert r.status_code == 200, r.text
+    again = env.client("reviewer").post(f"/api/v1/assignments/{a1['id']}/review", json={"decision": "reject"})
+    assert again.status_code == 409 and again.json()["error"] == "not_reviewable"
+    env.drain()
+
+    task = env.client("admin").get(f"/api/v1/tasks/{task_id}").json()
+    assert task["runs"][0]["status"] == "merged" and task["status"] == "done"
+    merged = task["runs"][0]["merged_revision"]
+    revs = env.client("admin").get(f"/api/v1/runs/{run_id}/revisions").json()["items"]
+    assert [r["number"] for r in revs] == [0, merged] == [0, 1]
+    # the merged move of keyframe 10 is the median of the two operators' (midway: ~10 m east of truth)
+    detail = env.client("admin").get(f"/api/v1/runs/{run_id}/revisions/1").json()
+    moves = {m[0]: m for m in detail["edit_set"]["moves"]}
+    assert set(moves) == {10, 20, 30}
+    from tests.api.tasks_support import shifted
+
+    t10 = truth_move(env, run_id, 10, error_east_m=10.0)
+    assert abs(moves[10][1] - t10["lon"]) < 2e-6 and abs(moves[10][2] - t10["lat"]) < 2e-6
+    hist = env.client("admin").get(f"/api/v1/tasks/{task_id}/history").json()
+    seq = [(h["entity"], h["from_status"], h["to_status"]) for h in hist]
+    assert ("task", "assignable", "in_progress") in seq and ("task", "reviewable", "done") in seq
+    assert ("task_run", "open", "conflict") in seq and ("task_run", "merging", "merged") in seq
+
+
+def test_idempotent_creation(env: Env) -> None:
+    run_id, task_id = _setup(env)
+    again = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], client_token="tok-1"))
+    assert again.status_code == 200 and again.json()["id"] == task_id
+    other = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], client_token="tok-1", priority=5))
+    assert other.status_code == 409 and other.json()["error"] == "client_token_reused"
+    listed = env.client("admin").get("/api/v1/tasks").json()
+    assert listed["total"] == 1
+    # after 24 h the token is forgotten and names a new task
+    env.clock.advance(24 * 3600 + 1)
+    later = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], client_token="tok-1"))
+    assert later.status_code == 201 and later.json()["id"] != task_id
+
+
+def test_bad_task_input_is_refused_with_field(env: Env) -> None:
+    run_id, _ = _setup(env)
+    r = env.client("admin").post("/api/v1/tasks", json=task_body([run_id, 999]))
+    assert r.status_code == 422 and r.json()["error"] == "unknown_runs" and r.json()["run_ids"] == [999]
+    reqs = [{"qualification": f"q{i}", "comparator": "exists"} for i in range(11)]
+    r = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], requirements=reqs))
+    assert r.status_code == 422 and "requirements" in r.json()["detail"]
+    r = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], requirements=[
+        {"qualification": "approved_count", "comparator": "exists"}]))
+    assert r.status_code == 422 and "numeric comparator" in r.json()["detail"]
+    assert env.client("admin").get("/api/v1/tasks").json()["total"] == 1
