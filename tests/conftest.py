@@ -79,10 +79,11 @@ def _empty_tables(url: str) -> None:
     import posefix.users.models  # noqa: F401
     from posefix.db import Base, Database
 
-    try:
-        import posefix.tiles.models  # noqa: F401
-    except ModuleNotFoundError:
-        pass
+    for optional in ("posefix.tiles.models", "posefix.tasks.models"):
+        try:
+            __import__(optional)
+        except ModuleNotFoundError:
+            pass
     db = Database(url)
     tables = [t.name for t in reversed(Base.metadata.sorted_tables)]
     with db.engine.begin() as conn:
@@ -127,12 +128,32 @@ def client(app: Any) -> Iterator[Any]:
         yield c
 
 
+_HASHES: dict[str, str] = {}
+
+
 def add_user(app: Any, username: str, role: str, password: str = PASSWORD) -> int:
-    from posefix.users.models import Role
-    from posefix.users.service import create_user
+    """A user row; the argon2id hash of each password is computed once per test process."""
+    from posefix.security import hash_password
+    from posefix.users.models import Role, User
+
+    if password not in _HASHES:
+        _HASHES[password] = hash_password(password)
+    with app.state.db.transaction() as session:
+        user = User(username=username, password_hash=_HASHES[password], role=Role(role).value, disabled=False)
+        session.add(user)
+        session.flush()
+        return user.id
+
+
+def direct_token(app: Any, user_id: int, scope: str = "write") -> dict[str, str]:
+    """A personal API token made by the service (no login round trip)."""
+    from posefix.users.models import Role, TokenScope
+    from posefix.users.service import Principal, create_token
 
     with app.state.db.transaction() as session:
-        return create_user(session, username, password, Role(role)).id
+        principal = Principal(user_id, "", Role.admin, "session", TokenScope.write, "")
+        _, secret = create_token(session, app.state.settings, principal, "test", TokenScope(scope))
+    return {"Authorization": f"Bearer {secret}"}
 
 
 def login(app: Any, username: str, password: str = PASSWORD) -> Any:
@@ -156,8 +177,7 @@ def users(app: Any) -> dict[str, dict[str, str]]:
     """One user per role, each with a write token: {role: headers}."""
     out = {}
     for role in ("admin", "reviewer", "operator", "client"):
-        add_user(app, role, role)
-        out[role] = token_for(app, role)
+        out[role] = direct_token(app, add_user(app, role, role))
     return out
 
 
