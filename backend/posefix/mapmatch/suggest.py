@@ -1,0 +1,113 @@
+"""Map-matching suggestions for pose runs: match keyframes to the drivable area of OSM.
+
+For a run's keyframes (lon/lat, orientation), we build a drivable-area graph around them
+(:mod:`posefix.mapmatch.osm`, ways buffered by width, default 2 m cells), and match with
+the same CRF as indoors:
+
+* odometry: the displacement between consecutive keyframes (from the run's relative
+  poses) with the heading of the body x axis from ``q_body_to_enu_wxyz``; a keyframe
+  interval longer than one cell is split into equal sub-steps of at most one cell so the
+  sparse one-cell transitions can follow it;
+* position: each keyframe's reported position as a weak Gaussian state feature
+  (``sigma_reported_m``, default 15 m), so the match stays near the run where the map
+  is ambiguous (parallel streets);
+* start: a Gaussian of the same width around the first keyframe.
+
+The result gives each keyframe's matched position (lon, lat), how far it moved, and
+``off_road``: the reported position is not on the drivable raster. Operators accept the
+matched positions as a distinct, weaker kind of edit ("machine suggestion").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from posefix.mapmatch.features import FeatureSigmas
+from posefix.mapmatch.graph import build_graph
+from posefix.mapmatch.model import Model
+from posefix.mapmatch.osm import local_georef, raster_from_ways, read_osm_ways
+from posefix.mapmatch.tracker import Tracker
+
+__all__ = ["Suggestions", "suggest_for_run", "heading_from_quaternion_wxyz"]
+
+
+@dataclass(frozen=True)
+class Suggestions:
+    """Per keyframe (k,): ``index`` rows into the run, ``lonlat_deg`` (k, 2) matched,
+    ``moved_m`` distance from the reported position, ``off_road`` reported position off the
+    drivable area, ``sigma_m`` 1σ major axis of the online column at that keyframe (m). ``n_vertices`` of the graph used."""
+
+    index: np.ndarray
+    lonlat_deg: np.ndarray
+    moved_m: np.ndarray
+    off_road: np.ndarray
+    sigma_m: np.ndarray
+    n_vertices: int
+
+
+def heading_from_quaternion_wxyz(q: np.ndarray) -> np.ndarray:
+    """Heading (n,) rad CCW from east of the body x axis, for body->ENU quaternions (n, 4) w,x,y,z."""
+    w, x, y, z = np.asarray(q, dtype=float).T
+    east = 1.0 - 2.0 * (y * y + z * z)
+    north = 2.0 * (x * y + w * z)
+    return np.arctan2(north, east)
+
+
+def suggest_for_run(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz: np.ndarray, osm_path: str | Path,
+                    index: np.ndarray | None = None, cell_m: float = 2.0, margin_m: float = 100.0,
+                    sigma_reported_m: float = 15.0, profile: str = "drive") -> Suggestions:
+    """Match keyframes (rows ``index`` of the run, default all) to OSM; see the module docstring.
+
+    ``lon_deg``, ``lat_deg`` (n,) and ``q_body_to_enu_wxyz`` (n, 4) are the run's columns
+    (a :class:`posefix.core.run.PoseRun` has them under these names).
+    """
+    lon = np.asarray(lon_deg, dtype=float)
+    lat = np.asarray(lat_deg, dtype=float)
+    idx = np.arange(lon.size) if index is None else np.asarray(index, dtype=np.int64)
+    if idx.size < 2:
+        raise ValueError("need at least two keyframes to match")
+    ll = np.column_stack([lon[idx], lat[idx]])
+    # Bounding box with a margin, in degrees via the local scale.
+    g0 = local_georef(float(ll[:, 0].min()), float(ll[:, 1].min()))
+    pad_lon, pad_lat = margin_m * g0.dlon_deg_per_m, margin_m * g0.dlat_deg_per_m
+    bbox = (float(ll[:, 0].min() - pad_lon), float(ll[:, 1].min() - pad_lat),
+            float(ll[:, 0].max() + pad_lon), float(ll[:, 1].max() + pad_lat))
+    ways = read_osm_ways(osm_path, bbox, profile=profile)
+    if not ways:
+        raise ValueError(f"{osm_path}:0: field highway: no {profile} ways within {margin_m} m of the run")
+    raster = raster_from_ways(ways, bbox, res_m=min(0.5, cell_m / 4.0))
+    graph = build_graph(raster, cell_m=cell_m, reach_m=1.5 * cell_m, min_component_m2=25.0 * cell_m**2)
+    geo = raster.georef
+    p_rep = geo.to_xy(ll)
+
+    heading = heading_from_quaternion_wxyz(np.asarray(q_body_to_enu_wxyz, dtype=float)[idx])
+    dist = np.linalg.norm(np.diff(p_rep, axis=0), axis=1)
+    # Odometry: relative-pose distance along the orientation's heading (mean of both ends).
+    h_mid = np.arctan2(np.sin(heading[:-1]) + np.sin(heading[1:]), np.cos(heading[:-1]) + np.cos(heading[1:]))
+    model = Model(graph=graph, weights={"f1": 1.0, "f2": 0.0, "f3": 1.0, "f4": 0.0},
+                  sigmas=FeatureSigmas(len_m=0.5 * cell_m, heading_rad=np.deg2rad(10.0)))
+    tr = Tracker(model, start_xy_m=tuple(p_rep[0]), start_sigma_m=sigma_reported_m)
+    cov = np.eye(2) * sigma_reported_m**2
+    kf_step = [0]
+    sig = [np.sqrt(float(np.trace(cov)) / 2.0)]
+    for k in range(idx.size - 1):
+        n_sub = max(1, int(np.ceil(dist[k] / cell_m)))
+        step = dist[k] / n_sub * np.array([np.cos(h_mid[k]), np.sin(h_mid[k])])
+        for j in range(n_sub):
+            wifi_like = (p_rep[k + 1], cov) if j == n_sub - 1 else None
+            tp = tr.step(step, t_ms=k, wifi=wifi_like)
+        kf_step.append(len(tr.t_ms) - 1)
+        sig.append(tp.summary.sigma_major_m)
+    path = tr.best_path()
+    p_match = graph.p_xy_m[path[np.asarray(kf_step)]]
+    return Suggestions(
+        index=idx,
+        lonlat_deg=geo.to_lonlat(p_match),
+        moved_m=np.linalg.norm(p_match - p_rep, axis=1),
+        off_road=~raster.is_walkable(p_rep),
+        sigma_m=np.asarray(sig),
+        n_vertices=graph.n_vertices,
+    )
