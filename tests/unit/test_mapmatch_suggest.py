@@ -20,7 +20,7 @@ def test_raster_buffers_ways_by_width():
     ne = geo.to_lonlat(np.array([[100.0, 100.0]]))[0]
     r = raster_from_ways([OsmWay(1, "primary", 10.0, line)], (24.0, 60.0, float(ne[0]), float(ne[1])), res_m=0.5)
     assert r.is_walkable(np.array([[50.0, 54.5]]))[0] and not r.is_walkable(np.array([[50.0, 55.6]]))[0]
-    assert not r.is_walkable(np.array([[5.0, 50.0]]))[0]
+    assert not r.is_walkable(np.array([[3.5, 50.0]]))[0]  # round cap: 5 m past the end only
 
 
 def test_heading_from_quaternion():
@@ -50,4 +50,4 @@ def test_suggestions_pull_a_drifted_drive_onto_the_street():
     err = np.linalg.norm(matched - truth, axis=1)
     assert err.mean() < 4.0 < 9.0
     assert sug.off_road.mean() > 0.5  # 9 m off a 6.5 m street is mostly off the road
-    assert np.allclose(sug.moved_m, np.linalg.norm(matched - reported, axis=1))
+    assert np.allclose(sug.moved_m, np.linalg.norm(matched - reported, axis=1), atol=0.01)
