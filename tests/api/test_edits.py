@@ -1,0 +1,237 @@
+"""Edits and revisions: preview, batches against a base revision, rules, revisions, diff, revert, status."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import numpy as np
+from sqlalchemy import update
+
+from posefix.runs.models import Run
+from tests.conftest import drive_csv, upload, wait_job
+
+METRE_LON = 1 / (111320 * np.cos(np.radians(60.17)))  # degrees of longitude per metre at 60.17 N
+
+
+def new_run(client, users, n=600):
+    r = upload(client, users["client"], drive_csv(n))
+    assert r.status_code == 201, r.text
+    return r.json()["id"]
+
+
+def kf_coords(client, h, rid, revision=None):
+    q = "" if revision is None else f"?revision={revision}"
+    fc = client.get(f"/api/v1/runs/{rid}/keyframes{q}", headers=h).json()
+    return fc, np.array([f["geometry"]["coordinates"] for f in fc["features"]])
+
+
+def set_rules(app, rid, **rules):
+    base = {"every_n": 1, "lock_n": 0, "lock_direction": "forward", "max_move_m": 0.0, "order_rule": "flag", "deleted": "remove"}
+    with app.state.db.transaction() as s:
+        s.execute(update(Run).where(Run.id == rid).values(rules={**base, **rules}))
+
+
+class TestPreview:
+    def test_preview_moves_keyframe(self, client, users):
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["operator"], rid) if False else kf_coords(client, users["admin"], rid)
+        target = [xy[30, 0] + 5 * METRE_LON, xy[30, 1]]
+        r = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [{"index": 30, "lon": target[0], "lat": target[1]}]},
+                        headers=users["operator"] if False else users["admin"])
+        assert r.status_code == 200, r.text
+        body = r.json()
+        pos = np.array(body["positions"])
+        assert pos.shape == (61, 2)
+        moved_m = (pos[30, 0] - xy[30, 0]) / METRE_LON
+        assert 4.0 < moved_m <= 5.01
+        assert body["refusals"] == [] and body["solver"]["status"] == "converged"
+        assert body["time_ms"] < 2000
+
+    def test_preview_lists_refusals_and_leaves_them_out(self, client, users, app):
+        rid = new_run(client, users)
+        set_rules(app, rid, every_n=2)
+        _, xy = kf_coords(client, users["admin"], rid)
+        moves = [{"index": 31, "lon": xy[31, 0] + 10 * METRE_LON, "lat": xy[31, 1]}]
+        body = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": moves}, headers=users["admin"]).json()
+        assert [(x["index"], x["reason"]) for x in body["refusals"]] == [(31, "not_adjustable")]
+        assert abs(body["positions"][31][0] - xy[31, 0]) < 1e-6
+
+    def test_preview_needs_editor_role(self, client, users):
+        rid = new_run(client, users)
+        r = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": []}, headers=users["client"])
+        assert r.status_code == 403 and r.json()["error"] == "role_forbidden"
+
+
+class TestSubmit:
+    def test_submit_writes_next_revision(self, client, users, app):
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["admin"], rid)
+        move = {"index": 20, "lon": xy[20, 0] + 8 * METRE_LON, "lat": xy[20, 1]}
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": [move], "comment": "kerb"}, headers=users["admin"])
+        assert r.status_code == 202, r.text
+        acc = r.json()
+        assert acc["revision"] == 1
+        run = client.get(f"/api/v1/runs/{rid}", headers=users["admin"]).json()
+        assert run["head_revision"] == 1 and run["revision"] == 0 and run["status"] == "in_review"
+        pending = client.get(f"/api/v1/runs/{rid}/keyframes?revision=1", headers=users["admin"])
+        assert pending.status_code == 409 and pending.json()["error"] == "revision_pending"
+        job = wait_job(app, acc["job_id"])
+        assert job["status"] == "succeeded" and job["result"]["revision"] == 1
+        fc, xy1 = kf_coords(client, users["admin"], rid)
+        assert fc["revision"] == 1
+        p = fc["features"][20]["properties"]
+        assert p["edited"] and 6 < p["correction_m"] < 8.5
+        assert fc["solver"]["status"] == "converged"
+        assert client.get(f"/api/v1/runs/{rid}", headers=users["admin"]).json()["adjusted"] is True
+        # the full-rate export follows the edit
+        rows = list(csv.DictReader(io.StringIO(client.get(f"/api/v1/runs/{rid}/export?format=csv", headers=users["admin"]).text)))
+        assert len(rows) == 600
+        assert abs(float(rows[200]["lon"]) - xy1[20, 0]) < 1e-7
+
+    def test_if_match_header(self, client, users, app):
+        rid = new_run(client, users)
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"deleted": [5]}, headers={**users["admin"], "If-Match": '"0"'})
+        assert r.status_code == 202
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"deleted": [6], "base_revision": 0}, headers={**users["admin"], "If-Match": '"1"'})
+        assert r.status_code == 400 and r.json()["error"] == "base_mismatch"
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"deleted": [6]}, headers=users["admin"])
+        assert r.status_code == 400 and r.json()["error"] == "base_revision_required"
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"deleted": [6]}, headers={**users["admin"], "If-Match": "abc"})
+        assert r.status_code == 400
+
+    def test_stale_base_409_with_current_revision(self, client, users, app):
+        rid = new_run(client, users)
+        assert client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [3]}, headers=users["admin"]).status_code == 202
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [4]}, headers=users["operator"] if False else users["reviewer"])
+        assert r.status_code == 409
+        assert r.json()["error"] == "stale_revision" and r.json()["current_revision"] == 1
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 7, "deleted": [4]}, headers=users["admin"])
+        assert r.status_code == 409
+
+    def test_rules_refuse_with_reason_per_edit(self, client, users, app):
+        rid = new_run(client, users)
+        set_rules(app, rid, every_n=2, max_move_m=20.0)
+        _, xy = kf_coords(client, users["admin"], rid)
+        moves = [
+            {"index": 3, "lon": xy[3, 0] + 2 * METRE_LON, "lat": xy[3, 1]},
+            {"index": 10, "lon": xy[10, 0] + 50 * METRE_LON, "lat": xy[10, 1]},
+            {"index": 99, "lon": 24.9, "lat": 60.1},
+            {"index": 12, "lon": xy[12, 0] + 2 * METRE_LON, "lat": xy[12, 1]},
+        ]
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": moves}, headers=users["admin"])
+        assert r.status_code == 422
+        body = r.json()
+        assert body["error"] == "edit_refused"
+        reasons = {x["index"]: x["reason"] for x in body["refusals"]}
+        assert reasons == {3: "not_adjustable", 10: "too_far", 99: "out_of_range"}
+        assert all(x["message"] for x in body["refusals"])
+        run = client.get(f"/api/v1/runs/{rid}", headers=users["admin"]).json()
+        assert run["head_revision"] == 0 and client.get(f"/api/v1/runs/{rid}/edits", headers=users["admin"]).json() == []
+
+    def test_lock_after_earlier_edit(self, client, users, app):
+        rid = new_run(client, users)
+        set_rules(app, rid, lock_n=3, lock_direction="forward")
+        _, xy = kf_coords(client, users["admin"], rid)
+        m = {"index": 10, "lon": xy[10, 0] + 2 * METRE_LON, "lat": xy[10, 1]}
+        assert client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": [m]}, headers=users["admin"]).status_code == 202
+        fc = client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["admin"]).json()
+        m2 = {"index": 12, "lon": xy[12, 0] + 2 * METRE_LON, "lat": xy[12, 1]}
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 1, "moves": [m2]}, headers=users["admin"])
+        assert r.status_code == 422 and r.json()["refusals"][0]["reason"] == "locked"
+        assert fc["head_revision"] == 1
+
+    def test_empty_batch(self, client, users):
+        rid = new_run(client, users)
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0}, headers=users["admin"])
+        assert r.status_code == 422 and r.json()["error"] == "empty_batch"
+
+    def test_edits_appended_with_author_and_task(self, client, users, app):
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["admin"], rid)
+        for base, dx, who in ((0, 3, "admin"), (1, 6, "reviewer")):
+            m = {"index": 15, "lon": xy[15, 0] + dx * METRE_LON, "lat": xy[15, 1]}
+            r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": base, "moves": [m], "task_id": 42}, headers=users[who])
+            assert r.status_code == 202, r.text
+        edits = client.get(f"/api/v1/runs/{rid}/edits", headers=users["admin"]).json()
+        assert [e["k"] for e in edits] == [15, 15]
+        assert edits[0]["author_id"] != edits[1]["author_id"] and {e["task_id"] for e in edits} == {42}
+        assert edits[0]["lon"] != edits[1]["lon"]
+        last = wait_job(app, 2)
+        assert last["status"] == "succeeded"
+        wait_job(app, 1)
+        rev2 = client.get(f"/api/v1/runs/{rid}/revisions/2", headers=users["admin"]).json()
+        assert rev2["edit_set"]["moves"] == [[15, edits[1]["lon"], edits[1]["lat"], None]]
+
+    def test_delete_keyframes_drops_samples(self, client, users, app):
+        rid = new_run(client, users)
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [5, 6]}, headers=users["admin"])
+        wait_job(app, r.json()["job_id"])
+        fc = client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["admin"]).json()
+        assert [f["properties"]["index"] for f in fc["features"] if f["properties"]["deleted"]] == [5, 6]
+        rows = list(csv.DictReader(io.StringIO(client.get(f"/api/v1/runs/{rid}/export", headers=users["admin"]).text)))
+        assert len(rows) == 580
+
+
+class TestRevisions:
+    def _two_revisions(self, client, users, app):
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["admin"], rid)
+        m = {"index": 25, "lon": xy[25, 0] + 6 * METRE_LON, "lat": xy[25, 1]}
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": [m]}, headers=users["admin"])
+        wait_job(app, r.json()["job_id"])
+        return rid, xy
+
+    def test_list_detail_diff(self, client, users, app):
+        rid, _ = self._two_revisions(client, users, app)
+        revs = client.get(f"/api/v1/runs/{rid}/revisions", headers=users["client"]).json()
+        assert [x["number"] for x in revs["items"]] == [0, 1] and revs["head_revision"] == 1
+        assert revs["items"][0]["kind"] == "import" and revs["items"][1]["n_moves"] == 1
+        detail = client.get(f"/api/v1/runs/{rid}/revisions/1", headers=users["client"]).json()
+        assert detail["edit_set"]["moves"][0][0] == 25 and detail["solver"]["status"] == "converged"
+        d = client.get(f"/api/v1/runs/{rid}/diff?from=0&to=1", headers=users["client"]).json()
+        assert len(d["displacement_m"]) == 61
+        assert 5.0 < d["displacement_m"][25] <= 6.1 and abs(d["max_m"] - max(d["displacement_m"])) < 1e-3
+        assert any(k["index"] == 25 for k in d["keyframes"])
+        assert client.get(f"/api/v1/runs/{rid}/diff?from=0&to=9", headers=users["client"]).status_code == 404
+        assert client.get(f"/api/v1/runs/{rid}/revisions/9", headers=users["client"]).status_code == 404
+
+    def test_revert_makes_new_revision(self, client, users, app):
+        rid, xy = self._two_revisions(client, users, app)
+        r = client.post(f"/api/v1/runs/{rid}/revert", json={"to_revision": 0, "comment": "undo"}, headers=users["reviewer"])
+        assert r.status_code == 202 and r.json()["revision"] == 2
+        wait_job(app, r.json()["job_id"])
+        fc, xy2 = kf_coords(client, users["admin"], rid)
+        assert fc["revision"] == 2
+        assert np.abs(xy2 - xy).max() < 1e-7
+        revs = client.get(f"/api/v1/runs/{rid}/revisions", headers=users["admin"]).json()["items"]
+        assert [x["kind"] for x in revs] == ["import", "edit", "revert"]
+        r = client.post(f"/api/v1/runs/{rid}/revert", json={"to_revision": 1, "base_revision": 1}, headers=users["reviewer"])
+        assert r.status_code == 409 and r.json()["current_revision"] == 2
+
+
+class TestStatus:
+    def test_operator_accept_then_review(self, client, users, app):
+        app.state.settings.operators_see_all_runs = True
+        rid = new_run(client, users)
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [2], "accept": True}, headers=users["operator"])
+        assert r.status_code == 202, r.text
+        assert client.get(f"/api/v1/runs/{rid}", headers=users["admin"]).json()["status"] == "corrected"
+        early = client.post(f"/api/v1/runs/{rid}/review", json={"decision": "accept"}, headers=users["reviewer"])
+        assert early.status_code == 409 and early.json()["error"] == "revision_pending"
+        wait_job(app, r.json()["job_id"])
+        assert client.post(f"/api/v1/runs/{rid}/review", json={"decision": "accept"}, headers=users["operator"]).status_code == 403
+        rej = client.post(f"/api/v1/runs/{rid}/review", json={"decision": "reject", "comment": "wrong street"}, headers=users["reviewer"])
+        assert rej.status_code == 200 and rej.json()["status"] == "in_review"
+        acc = client.post(f"/api/v1/runs/{rid}/review", json={"decision": "accept"}, headers=users["reviewer"]).json()
+        assert acc["status"] == "accepted" and acc["verified"] is True
+        hist = client.get(f"/api/v1/runs/{rid}/history", headers=users["admin"]).json()["items"]
+        assert [h["action"] for h in hist] == ["imported", "edited", "revision_ready", "rejected", "accepted"]
+        assert [h["to_status"] for h in hist] == ["imported", "corrected", None, "in_review", "accepted"]
+        assert hist[3]["comment"] == "wrong street"
+
+    def test_reviewer_accept_in_batch(self, client, users, app):
+        rid = new_run(client, users)
+        client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "accept": True}, headers=users["reviewer"])
+        run = client.get(f"/api/v1/runs/{rid}", headers=users["admin"]).json()
+        assert run["status"] == "accepted" and run["verified"] is True and run["adjusted"] is False
