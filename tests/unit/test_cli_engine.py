@@ -163,19 +163,32 @@ def test_bad_edits_and_unmatched_times(simulated, tmp_path):
     (["evaluate", "RUN", "nothing.csv"], ["no such file"]),
 ])
 def test_usage_errors_are_one_line(simulated, tmp_path, args, fragments):
+    # in-process (typer's runner) to keep the suite quick; the subprocess tests above
+    # cover the real entry point
     (tmp_path / "x.tum").write_text("0 0 0 0 0 0 0 1\n")
     run = str(simulated / "run.csv")
     args = [run if a == "RUN" else str(tmp_path / a) if a in ("OUT.csv", "OUT.xyz", "missing/OUT.csv", "d", "x.tum", "y.csv", "nothing.csv") else a for a in args]
-    res = posefix(*args)
+    res = in_process(*args)
     assert_one_line_error(res, *fragments)
 
 
+def in_process(*args):
+    from typer.testing import CliRunner
+
+    from posefix.cli import _register, app
+
+    _register()
+    res = CliRunner().invoke(app, [str(a) for a in args])
+    return subprocess.CompletedProcess(args, res.exit_code, res.stdout, res.stderr)
+
+
 def test_help_explains_options_with_units():
-    text = ok("correct", "--help").stdout
+    text = in_process("correct", "--help").stdout
     for needle in ("--edits", "--output", "--config", "--keyframes-every-s", "--keyframes-every-m", "--format", "seconds", "metres"):
         assert needle in text
-    sim = ok("simulate", "--help").stdout
+    sim = in_process("simulate", "--help").stdout
     for needle in ("--duration-s", "--rate-hz", "--edit-every-s", "--seed", "--osm", "--regime", "Hz", "seconds"):
         assert needle in sim
-    assert "--json" in ok("evaluate", "--help").stdout
-    assert "--origin" in ok("convert", "--help").stdout
+    assert "--json" in in_process("evaluate", "--help").stdout
+    assert "--origin" in in_process("convert", "--help").stdout
+    assert "correct" in ok("--help").stdout  # the installed entry point lists the command
