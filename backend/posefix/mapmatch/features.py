@@ -90,11 +90,12 @@ def f_step(offsets_m: np.ndarray, steps_xy_m: np.ndarray, incr_xy_m: np.ndarray,
     steps = np.asarray(steps_xy_m, dtype=float)
     l = np.linalg.norm(steps, axis=1)
     th = np.arctan2(steps[:, 1], steps[:, 0])
-    u = np.stack([np.cos(th), np.sin(th)], axis=1)  # along the step
-    n = np.stack([-u[:, 1], u[:, 0]], axis=1)  # across (left)
-    r = offsets_m[None, :, :] - np.asarray(incr_xy_m, dtype=float)[:, None, :]  # (T, K, 2)
-    r_a = np.einsum("tkd,td->tk", r, u)
-    r_c = np.einsum("tkd,td->tk", r, n)
+    c, s = np.cos(th)[:, None], np.sin(th)[:, None]  # along-step unit vector (T, 1) each
+    inc = np.asarray(incr_xy_m, dtype=float)
+    rx = offsets_m[None, :, 0] - inc[:, 0:1]  # residual (T, K) east
+    ry = offsets_m[None, :, 1] - inc[:, 1:2]  # and north
+    r_a = rx * c + ry * s
+    r_c = -rx * s + ry * c
     s_c = np.maximum(l * sig.heading_rad, sig.len_m)[:, None]
     return -0.5 * ((r_a / sig.len_m) ** 2 + (r_c / s_c) ** 2)
 

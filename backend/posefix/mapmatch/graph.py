@@ -65,6 +65,7 @@ class GridGraph:
     georef: GeoRef | None = None
     _succ: np.ndarray | None = field(default=None, repr=False)
     _pred: np.ndarray | None = field(default=None, repr=False)
+    _pred_t: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def n_vertices(self) -> int:
@@ -100,6 +101,13 @@ class GridGraph:
         if self._pred is None:
             self._succ, self._pred = self._tables()
         return self._pred
+
+    @property
+    def pred_t(self) -> np.ndarray:
+        """(K, V) int32 contiguous transpose of :attr:`pred` (one offset per row, for speed)."""
+        if self._pred_t is None:
+            self._pred_t = np.ascontiguousarray(self.pred.T)
+        return self._pred_t
 
     def _tables(self) -> tuple[np.ndarray, np.ndarray]:
         grid = self.index_grid()
