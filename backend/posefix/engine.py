@@ -227,7 +227,7 @@ class Problem:
             drift = estimate_drift(
                 t_act, p_rep, np.where(has_fix[:, None], g, np.nan), e_act, edit_c_m, edit_has_alt,
                 lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
-                cfg.drift.walk_m2_per_s, cfg.drift.min_edits_for_estimate,
+                cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
             )
         else:
             drift = no_drift(len(act_rows))

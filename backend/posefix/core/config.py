@@ -67,7 +67,8 @@ class GravityConfig:
 @dataclass(frozen=True)
 class DriftConfig:
     enabled: bool = True
-    walk_m2_per_s: float = 0.05
+    bias_sigma_m: float = 5.0
+    bias_tau_s: float = 300.0
     min_edits_for_estimate: int = 3
 
 
@@ -95,7 +96,7 @@ _POSITIVE = {
     ("location", "sigma_h_m"), ("location", "sigma_v_m"), ("location", "loss_scale"),
     ("user", "sigma_h_m"), ("user", "sigma_v_m"), ("gravity", "sigma"),
     ("relative", "sigma_t_floor_m"), ("relative", "sigma_r_floor_rad"), ("solver", "max_iterations"),
-    ("solver", "ftol"), ("rules", "every_n"),
+    ("solver", "ftol"), ("rules", "every_n"), ("drift", "bias_sigma_m"), ("drift", "bias_tau_s"),
 }
 
 

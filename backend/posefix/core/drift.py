@@ -1,9 +1,10 @@
 """Drift (issue section 6): the GNSS bias the edits reveal, and what it does to the location term.
 
 GNSS errors are correlated in time.  Model the location measurement at keyframe i as
-``g_i = truth_i + b(t_i) + w_i``: a bias ``b`` that wanders as a random walk of intensity
-``q`` (m^2/s per horizontal axis) plus white noise ``w`` of sigma ``sigma_w``.  An edit is
-``c_k = truth + u_k`` with sigma ``sigma_u``, so every edit observes the bias:
+``g_i = truth_i + b(t_i) + w_i``: a bias ``b`` that wanders as a first-order Gauss-Markov
+(Ornstein-Uhlenbeck) process, stationary sigma ``sigma_b`` and correlation time ``tau``
+(per horizontal axis), plus white noise ``w`` of sigma ``sigma_w``.  An edit is
+``c_k = truth + u_k`` (sigma ``sigma_u``), so every edit observes the bias:
 
     d_k = g~(t_k) - c_k = b(t_k) + n_k,
 
@@ -11,17 +12,23 @@ where ``g~(t_k)`` is the location measurement at the edit made robust against ou
 and white noise: the reported pose at the edit plus the median of (g - p~) over the
 neighbouring keyframes (the reported pose keeps its local shape, so g - p~ varies slowly).
 
-1. ``q`` is estimated from consecutive edits, whose differences have per-axis variance
-   ``q dt + 2 var(n)`` (method of moments, pooled over all pairs).  With fewer edits than ``min_edits`` the configured prior is used.
+1. Parameters from the edits (with at least ``min_edits`` of them; the configured prior
+   otherwise): the wander rate ``q = 2 sigma_b^2 / tau`` from consecutive differences,
+   whose per-axis variance is ``q dt + var(n_k) + var(n_k+1)`` for dt << tau (method of
+   moments pooled over all pairs), ``sigma_b^2`` from the mean square offset, and
+   ``tau = 2 sigma_b^2 / q`` (clipped to [30 s, 1 h]).
 2. A Kalman filter and RTS smoother over the edit times give the bias and its variance at
-   each edit; between edits the mean is interpolated linearly (the Brownian-bridge mean)
-   and the variance is ``(1-a) P_a + a P_b + q (t - t_a)(t_b - t)/(t_b - t_a)``; beyond
-   the first/last edit the bias is held and its variance grows by ``q |dt|``.
+   each edit.  Between two edits the bias is the Gauss-Markov bridge between them (linear
+   for gaps much shorter than tau); beyond the first/last edit it decays towards zero
+   with tau while its variance grows back to sigma_b^2.  An interval whose two edits
+   disagree far beyond their noise (a jump of an urban-canyon offset) gets the variance of
+   a Brownian bridge with the intensity that jump implies.
 3. The location term of keyframe i is re-centred on ``g_i - b_i`` and its horizontal
    sigma inflated to ``sqrt(sigma_w^2 + var_b,i)``: where edits show drift the term is
    down-weighted (between edits, where the bias is uncertain) and no longer biased, so
    hundreds of weak, correlated fixes cannot pull the run back onto a biased track.  With
-   no drift (q ~ 0, offsets ~ 0) the term is left as it was.
+   no drift (offsets ~ noise) the term is left as it was; far from any edit the model
+   returns to the unbiased prior, so the pull of one edit fades with distance.
 
 Vertical: only 3-D edits observe the vertical bias; without them the vertical is left alone.
 """
@@ -33,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 MEDIAN_EFFICIENCY = 1.2533  # sigma of a sample median / (sigma / sqrt(n)) for Gaussian data
+MIN_TAU_S, MAX_TAU_S = 30.0, 3600.0  # plausible correlation times of a GNSS bias
 
 
 @dataclass(frozen=True)
@@ -42,7 +50,8 @@ class DriftEstimate:
     offset_enu_m : (3,) robust mean (median) of the edit offsets g - c, metres (NaN vertical
         when no 3-D edit).
     spread_m : robust horizontal spread (MAD-based sigma) of the edit offsets, metres.
-    walk_m2_per_s : estimated random-walk intensity q of the bias, m^2/s per axis.
+    walk_m2_per_s : wander rate q = 2 sigma_b^2 / tau of the bias, m^2/s per axis.
+    sigma_b_m, tau_s : stationary sigma (per axis) and correlation time of the bias model.
     detected : True when the edits show a bias the location term must not be trusted for.
     bias_enu_m : (k,3) bias at each keyframe (g - truth), metres.
     bias_sigma_m : (k,) horizontal one-sigma uncertainty of that bias, metres.
@@ -60,12 +69,16 @@ class DriftEstimate:
     weight: np.ndarray
     edit_offsets_enu_m: np.ndarray
     edit_t_s: np.ndarray
+    sigma_b_m: float = 0.0
+    tau_s: float = 0.0
 
     def to_json(self) -> dict:
         return {
             "offset_enu_m": [None if not np.isfinite(v) else float(v) for v in self.offset_enu_m],
             "spread_m": float(self.spread_m),
             "walk_m2_per_s": float(self.walk_m2_per_s),
+            "sigma_b_m": float(self.sigma_b_m),
+            "tau_s": float(self.tau_s),
             "detected": bool(self.detected),
             "n_edits": int(len(self.edit_t_s)),
             "max_bias_m": float(np.max(np.hypot(*self.bias_enu_m[:, :2].T))) if len(self.bias_enu_m) else 0.0,
@@ -142,20 +155,23 @@ def local_walk(t_s: np.ndarray, d_h: np.ndarray, noise_var: np.ndarray, q: float
     return np.where(z > 3.0 * expected, raised, q)
 
 
-def smooth_random_walk(t_s: np.ndarray, y: np.ndarray, r_var: np.ndarray, q, prior_var: float = 1e6):
-    """Kalman filter + RTS smoother of a scalar random walk observed at sorted times.
+def smooth_gauss_markov(t_s: np.ndarray, y: np.ndarray, r_var: np.ndarray, sigma2: float, tau_s: float, q_extra=None):
+    """Kalman filter + RTS smoother of a scalar Gauss-Markov process observed at sorted times.
 
-    y (m,) observations, r_var (m,) their variances, q the intensity (scalar, or (m-1,) one
-    per interval).  Returns smoothed means (m,) and variances (m,).
+    ``x_k+1 = a x_k + w``, ``a = exp(-dt/tau)``, ``var(w) = sigma2 (1 - a^2)`` plus
+    ``q_extra[k] dt`` (jumps).  y (m,) observations with variances r_var (m,).  Returns the
+    smoothed means (m,) and variances (m,).
     """
-    q = np.broadcast_to(np.asarray(q, dtype=float), (max(len(t_s) - 1, 0),))
     m = len(t_s)
+    dt = np.diff(t_s)
+    a = np.exp(-dt / tau_s)
+    Q = sigma2 * (1.0 - a * a) + (0.0 if q_extra is None else np.asarray(q_extra) * dt)
     xf, Pf = np.empty(m), np.empty(m)
     xp, Pp = np.empty(m), np.empty(m)
-    x, P = 0.0, prior_var
+    x, P = 0.0, sigma2
     for k in range(m):
         if k:
-            P = P + q[k - 1] * (t_s[k] - t_s[k - 1])
+            x, P = a[k - 1] * x, a[k - 1] ** 2 * P + Q[k - 1]
         xp[k], Pp[k] = x, P
         K = P / (P + r_var[k])
         x = x + K * (y[k] - x)
@@ -163,29 +179,46 @@ def smooth_random_walk(t_s: np.ndarray, y: np.ndarray, r_var: np.ndarray, q, pri
         xf[k], Pf[k] = x, P
     xs, Ps = xf.copy(), Pf.copy()
     for k in range(m - 2, -1, -1):
-        G = Pf[k] / Pp[k + 1]
+        G = Pf[k] * a[k] / Pp[k + 1]
         xs[k] = xf[k] + G * (xs[k + 1] - xp[k + 1])
         Ps[k] = Pf[k] + G * G * (Ps[k + 1] - Pp[k + 1])
     return xs, Ps
 
 
-def bias_at(kf_t_s: np.ndarray, t_e: np.ndarray, mean: np.ndarray, var: np.ndarray, q: float, q_seg=None):
-    """Bias mean (k,) and variance (k,) at keyframe times from the smoothed values at edit times.
+def bias_at(kf_t_s, t_e, mean, var, sigma2: float, tau_s: float, q_jump=None):
+    """Bias mean (k,) and variance (k,) at keyframe times from the smoothed values at edits.
 
-    ``q`` applies outside the edits, ``q_seg`` (m-1,) inside each interval (default q).
+    Between edits a, b: the Gauss-Markov bridge ``mu = w_a x_a + w_b x_b`` with
+    ``w_a = (c_a - c_b c_ab)/(1 - c_ab^2)``, ``w_b = (c_b - c_a c_ab)/(1 - c_ab^2)``,
+    ``c_a = exp(-(t - t_a)/tau)``, ``c_b = exp(-(t_b - t)/tau)``, ``c_ab = exp(-(t_b - t_a)/tau)``;
+    variance ``sigma2 (1 - w_a c_a - w_b c_b) + w_a^2 P_a + w_b^2 P_b`` plus
+    ``q_jump (t - t_a)(t_b - t)/(t_b - t_a)`` on intervals with a jump.  Outside the edits:
+    ``mu = c x_end``, variance ``sigma2 (1 - c^2) + c^2 P_end``.
     """
+    t = np.asarray(kf_t_s, dtype=float)
+    mu = np.zeros(len(t))
+    v = np.full(len(t), sigma2)
+    before, after = t < t_e[0], t > t_e[-1]
+    for sel, t_end, x_end, p_end in ((before, t_e[0], mean[0], var[0]), (after, t_e[-1], mean[-1], var[-1])):
+        c = np.exp(-np.abs(t[sel] - t_end) / tau_s)
+        mu[sel] = c * x_end
+        v[sel] = sigma2 * (1.0 - c * c) + c * c * p_end
+    inside = ~(before | after)
     if len(t_e) == 1:
-        return np.full(len(kf_t_s), mean[0]), var[0] + q * np.abs(kf_t_s - t_e[0])
-    q_seg = np.full(len(t_e) - 1, q) if q_seg is None else np.asarray(q_seg, dtype=float)
-    j = np.clip(np.searchsorted(t_e, kf_t_s, side="right") - 1, 0, len(t_e) - 2)
+        mu[inside], v[inside] = mean[0], var[0]
+        return mu, v
+    ti = t[inside]
+    j = np.clip(np.searchsorted(t_e, ti, side="right") - 1, 0, len(t_e) - 2)
     ta, tb = t_e[j], t_e[j + 1]
-    a = np.clip((kf_t_s - ta) / (tb - ta), 0.0, 1.0)
-    mu = (1 - a) * mean[j] + a * mean[j + 1]
-    bridge = q_seg[j] * np.clip(kf_t_s - ta, 0, None) * np.clip(tb - kf_t_s, 0, None) / (tb - ta)
-    v = (1 - a) * var[j] + a * var[j + 1] + bridge
-    before, after = kf_t_s < t_e[0], kf_t_s > t_e[-1]
-    v = np.where(before, var[0] + q * (t_e[0] - kf_t_s), v)
-    v = np.where(after, var[-1] + q * (kf_t_s - t_e[-1]), v)
+    ca, cb = np.exp(-(ti - ta) / tau_s), np.exp(-(tb - ti) / tau_s)
+    cab = np.exp(-(tb - ta) / tau_s)
+    den = np.maximum(1.0 - cab * cab, 1e-12)
+    wa, wb = (ca - cb * cab) / den, (cb - ca * cab) / den
+    mu[inside] = wa * mean[j] + wb * mean[j + 1]
+    vi = sigma2 * np.maximum(1.0 - wa * ca - wb * cb, 0.0) + wa * wa * var[j] + wb * wb * var[j + 1]
+    if q_jump is not None:
+        vi = vi + np.asarray(q_jump)[j] * (ti - ta) * (tb - ti) / np.maximum(tb - ta, 1e-9)
+    v[inside] = vi
     return mu, v
 
 
@@ -200,7 +233,8 @@ def estimate_drift(
     sigma_w_v_m: float,
     sigma_u_h_m: float,
     sigma_u_v_m: float,
-    prior_walk_m2_per_s: float,
+    prior_sigma_m: float,
+    prior_tau_s: float,
     min_edits_for_estimate: int = 3,
     window: int = 5,
 ) -> DriftEstimate:
@@ -224,35 +258,39 @@ def estimate_drift(
     noise_h = np.full(len(t_e), sigma_u_h_m**2 + (MEDIAN_EFFICIENCY * sigma_w_h_m) ** 2 / n_win)
     noise_v = np.full(len(t_e), sigma_u_v_m**2 + (MEDIAN_EFFICIENCY * sigma_w_v_m) ** 2 / n_win)
     if len(t_e) >= max(min_edits_for_estimate, 2):
-        q = estimate_walk(t_e, d[:, :2], noise_h)
+        q = max(estimate_walk(t_e, d[:, :2], noise_h), 1e-6)
+        sigma2 = max(float(np.mean(0.5 * np.sum(d[:, :2] ** 2, axis=1) - noise_h)), 1e-4)
+        tau = float(np.clip(2.0 * sigma2 / q, MIN_TAU_S, MAX_TAU_S))
     else:
-        q = prior_walk_m2_per_s
-    q = max(q, 1e-6)
-    q_seg = local_walk(t_e, d[:, :2], noise_h, q)
+        sigma2, tau = prior_sigma_m**2, prior_tau_s
+        q = 2.0 * sigma2 / tau
+    q_jump = local_walk(t_e, d[:, :2], noise_h, q) - q
     bias = np.zeros((k, 3))
     var_h = np.zeros(k)
     for axis in (0, 1):
-        xs, Ps = smooth_random_walk(t_e, d[:, axis], noise_h, q_seg)
-        bias[:, axis], v = bias_at(kf_t_s, t_e, xs, Ps, q, q_seg)
+        xs, Ps = smooth_gauss_markov(t_e, d[:, axis], noise_h, sigma2, tau, q_jump)
+        bias[:, axis], v = bias_at(kf_t_s, t_e, xs, Ps, sigma2, tau, q_jump)
         var_h += 0.5 * v
     has_v = np.isfinite(d[:, 2])
     if np.any(has_v):
-        xs, Ps = smooth_random_walk(t_e[has_v], d[has_v, 2], noise_v[has_v], q)
-        bias[:, 2], _ = bias_at(kf_t_s, t_e[has_v], xs, Ps, q)
+        xs, Ps = smooth_gauss_markov(t_e[has_v], d[has_v, 2], noise_v[has_v], sigma2, tau)
+        bias[:, 2], _ = bias_at(kf_t_s, t_e[has_v], xs, Ps, sigma2, tau)
     offset = np.array([np.median(d[:, 0]), np.median(d[:, 1]), np.median(d[has_v, 2]) if np.any(has_v) else np.nan])
     dev = np.hypot(d[:, 0] - offset[0], d[:, 1] - offset[1])
     spread = float(1.4826 * np.median(dev) / np.sqrt(np.log(4.0))) if len(dev) > 1 else 0.0
-    # A bias is "detected" when the offsets stand out of the noise they would have without one.
+    # A bias is "detected" when the offsets stand out of the noise they would have without
+    # one: a median offset beyond 3 of its sigmas, or a wander over the typical spacing of
+    # edits of more than twice the offsets' noise (the pooled estimate of q is rough).
     typical_dt = float(np.median(np.diff(t_e))) if len(t_e) > 1 else float(kf_t_s[-1] - kf_t_s[0])
-    detected = bool(
-        np.hypot(offset[0], offset[1]) > 2.0 * np.sqrt(noise_h[0] + sigma_w_h_m**2 / len(t_e))
-        or q * typical_dt > noise_h[0]
-    )
+    median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise_h[0] / len(t_e))
+    detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise_h[0])
     weight = sigma_w_h_m**2 / (sigma_w_h_m**2 + var_h)
     return DriftEstimate(
         offset_enu_m=offset,
         spread_m=spread,
         walk_m2_per_s=float(q),
+        sigma_b_m=float(np.sqrt(sigma2)),
+        tau_s=float(tau),
         detected=detected,
         bias_enu_m=bias,
         bias_sigma_m=np.sqrt(var_h),

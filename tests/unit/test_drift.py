@@ -1,0 +1,91 @@
+"""Drift: the bias the edits reveal, its uncertainty, and the location weights it implies."""
+
+import numpy as np
+
+from posefix.core.drift import estimate_drift, estimate_walk, smooth_gauss_markov
+
+
+def straight(k=601):
+    t = np.arange(k, dtype=float)
+    p = np.stack([10.0 * t, np.zeros(k), np.zeros(k)], 1)
+    return t, p
+
+
+def fit(t, p, g, edit_kf, c, **kw):
+    args = dict(sigma_w_h_m=3.0, sigma_w_v_m=6.0, sigma_u_h_m=0.5, sigma_u_v_m=0.5,
+                prior_sigma_m=5.0, prior_tau_s=300.0, min_edits_for_estimate=3)
+    args.update(kw)
+    return estimate_drift(t, p, g, np.asarray(edit_kf), np.asarray(c), np.zeros(len(edit_kf), bool), **args)
+
+
+def test_a_constant_gnss_offset_is_found_and_removed():
+    t, p = straight()
+    rng = np.random.default_rng(0)
+    offset = np.array([8.0, -6.0, 0.0])
+    g = p + offset + rng.normal(0, 3.0, p.shape)  # biased GNSS; the pose is the truth here
+    edits = np.arange(50, 601, 100)
+    c = p[edits] + rng.normal(0, 0.5, (len(edits), 3))
+    d = fit(t, p, g, edits, c)
+    assert d.detected
+    assert np.allclose(d.offset_enu_m[:2], offset[:2], atol=1.0)
+    assert np.allclose(d.bias_enu_m[:, :2], offset[:2], atol=1.2)
+    assert np.isnan(d.offset_enu_m[2])  # 2-D edits say nothing about the vertical
+    assert d.walk_m2_per_s < 0.05
+
+
+def test_no_bias_leaves_the_location_term_almost_untouched():
+    t, p = straight()
+    rng = np.random.default_rng(1)
+    g = p + rng.normal(0, 3.0, p.shape)
+    edits = np.arange(50, 601, 100)
+    d = fit(t, p, g, edits, p[edits] + rng.normal(0, 0.5, (len(edits), 3)))
+    assert not d.detected
+    assert np.min(d.weight) > 0.75
+    assert np.max(np.hypot(*d.bias_enu_m[:, :2].T)) < 1.5
+
+
+def test_a_wandering_bias_lowers_the_weight_between_edits_not_at_them():
+    t, p = straight()
+    rng = np.random.default_rng(2)
+    walk = np.cumsum(rng.normal(0, 1.0, (len(t), 3)), axis=0) * np.array([1, 1, 0])  # 1 m^2/s per axis
+    g = p + walk + rng.normal(0, 1.0, p.shape)
+    edits = np.arange(0, 601, 60)
+    d = fit(t, p, g, edits, p[edits] + rng.normal(0, 0.5, (len(edits), 3)))
+    assert d.detected
+    assert 0.3 < d.walk_m2_per_s < 3.0
+    mid = edits[:-1] + 30
+    assert np.all(d.weight[mid] < d.weight[edits[:-1]])
+    assert np.mean(d.weight[mid]) < 0.6
+    # the bias estimate follows the walk much better than ignoring it would
+    err = np.hypot(*(d.bias_enu_m[:, :2] - walk[:, :2]).T)
+    assert np.sqrt(np.mean(err**2)) < 0.5 * np.sqrt(np.mean(np.sum(walk[:, :2] ** 2, axis=1)))
+
+
+def test_a_bias_jump_between_two_edits_is_flagged_in_that_interval_only():
+    t, p = straight()
+    rng = np.random.default_rng(3)
+    jump = np.where(t[:, None] > 330, np.array([15.0, 0.0, 0.0]), 0.0)
+    g = p + jump + rng.normal(0, 2.0, p.shape)
+    edits = np.arange(0, 601, 60)
+    d = fit(t, p, g, edits, p[edits] + rng.normal(0, 0.3, (len(edits), 3)))
+    inside = (t > 300) & (t < 360)
+    far = (t > 60) & (t < 240)
+    assert np.mean(d.weight[inside]) < 0.5 * np.mean(d.weight[far])
+
+
+def test_outlier_fixes_at_an_edit_do_not_corrupt_its_offset():
+    t, p = straight()
+    g = p.copy()
+    g[298:303] += [50.0, 0.0, 0.0]  # a burst of 50 m outliers right at the edit
+    d = fit(t, p, g, [300], p[[300]])
+    assert np.hypot(*d.edit_offsets_enu_m[0, :2]) < 1e-9
+
+
+def test_estimators_on_known_processes():
+    rng = np.random.default_rng(4)
+    tt = np.arange(0, 20000, 100.0)
+    y = np.cumsum(rng.normal(0, np.sqrt(0.2 * 100.0), (len(tt), 2)), axis=0)
+    q = estimate_walk(tt, y + rng.normal(0, 1.0, y.shape), np.full(len(tt), 1.0))
+    assert 0.15 < q < 0.26
+    mean, var = smooth_gauss_markov(np.array([0.0, 10.0]), np.array([1.0, 3.0]), np.array([1e-6, 1e-6]), 25.0, 300.0)
+    assert np.allclose(mean, [1.0, 3.0], atol=1e-4) and np.all(var < 1e-5)
