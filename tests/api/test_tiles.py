@@ -122,6 +122,7 @@ from sqlalchemy.engine import make_url
 
 from posefix.basemap import build_basemap
 from posefix.basemap.tiling import tiles_covering
+from posefix.tiles.service import forget_cached_sources, tile_settings
 
 SHARED_FIXTURE = REPO / "data" / "tiles" / "world-toner-z3.pmtiles"
 HELSINKI_OSM = REPO / "data" / "osm" / "helsinki.osm.pbf"
@@ -168,6 +169,8 @@ def data_dir(tmp_path: Path, basemap_file: Path) -> Path:
 @pytest.fixture
 def app(database_url: str, data_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[FastAPI]:
     monkeypatch.setenv("POSEFIX_TILE_CACHE_DIR", str(data_dir / "tile-cache"))
+    tile_settings.cache_clear()
+    forget_cached_sources()
     migrate(database_url)
     settings = Settings(environment="test", database_url=database_url, data_dir=data_dir, log_json=False)
     application = make_app(settings)
@@ -175,6 +178,8 @@ def app(database_url: str, data_dir: Path, monkeypatch: pytest.MonkeyPatch) -> I
     add_user(application, "olga", "olga-password-1", "operator")
     yield application
     application.state.db.dispose()
+    tile_settings.cache_clear()
+    forget_cached_sources()
 
 
 @pytest.fixture
@@ -458,6 +463,7 @@ class TestUpstreamProxy:
         self, admin: TestClient, upstream: socketserver.TCPServer, monkeypatch: pytest.MonkeyPatch,
     ) -> None:
         monkeypatch.setenv("POSEFIX_TILE_UPSTREAM_TIMEOUT_S", "0.3")
+        tile_settings.cache_clear()
         self._register(admin, upstream)
         upstream.mode = "slow"
         started = time.perf_counter()
@@ -471,6 +477,7 @@ class TestUpstreamProxy:
         self._register(admin, upstream)
         assert admin.get("/api/v1/tiles/up/2/2/2.png").status_code == 200
         monkeypatch.setenv("POSEFIX_TILE_UPSTREAM_MAX_AGE_S", "0")
+        tile_settings.cache_clear()
         upstream.mode = "error"
         response = admin.get("/api/v1/tiles/up/2/2/2.png")
         assert response.status_code == 200 and response.content == tile_png(2, 2, 2)

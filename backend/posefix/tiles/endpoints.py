@@ -76,7 +76,7 @@ def get_tile(
     if_none_match: Annotated[str | None, Header()] = None,
 ) -> Response:
     """One XYZ tile of a registered source, with an ETag; 304 when the client's copy is current."""
-    tile_source = service.get_source(session, source)
+    tile_source = service.cached_source(session, source)
     tile = service.read_tile(settings, tile_source, z, x, y, ext)
     if tile is None:
         if tile_source.format == "pbf":

@@ -5,8 +5,10 @@ Services never commit; the request does (see ``posefix.deps.get_session``).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from urllib.parse import urlsplit
@@ -45,6 +47,34 @@ class TileSettings(BaseSettings):
     browser_max_age_s: int = 3600
     # Empty: <data_dir>/tile-cache.
     cache_dir: Path | None = None
+
+
+@functools.lru_cache(maxsize=1)
+def tile_settings() -> TileSettings:
+    """The tile settings, read once per process (``tile_settings.cache_clear()`` re-reads them)."""
+    return TileSettings()
+
+
+# A tile request looks its source up by name; the answer is kept this long per process,
+# so a source deleted through another API process stops serving here within this time.
+SOURCE_CACHE_S = 2.0
+_SOURCE_CACHE: dict[str, tuple[float, TileSource]] = {}
+
+
+def cached_source(session: Session, name: str) -> TileSource:
+    """``get_source`` for the hot tile path: a detached copy, reused for SOURCE_CACHE_S."""
+    now = time.monotonic()
+    hit = _SOURCE_CACHE.get(name)
+    if hit is not None and hit[0] > now:
+        return hit[1]
+    source = get_source(session, name)
+    session.expunge(source)
+    _SOURCE_CACHE[name] = (now + SOURCE_CACHE_S, source)
+    return source
+
+
+def forget_cached_sources() -> None:
+    _SOURCE_CACHE.clear()
 
 
 class BadGateway(AppError):
@@ -90,8 +120,8 @@ def source_file_path(settings: Settings, source: TileSource) -> Path:
     return resolve_data_path(settings.data_dir, source.path or "")[0]
 
 
-def _cache_dir(settings: Settings, tile_settings: TileSettings, source: TileSource) -> Path:
-    base = tile_settings.cache_dir or (Path(settings.data_dir) / "tile-cache")
+def _cache_dir(settings: Settings, options: TileSettings, source: TileSource) -> Path:
+    base = options.cache_dir or (Path(settings.data_dir) / "tile-cache")
     # The id keeps a re-registered name from serving the old source's cached tiles.
     return Path(base).resolve() / f"{source.id}-{source.name}"
 
@@ -130,6 +160,7 @@ def create_source(session: Session, settings: Settings, body: TileSourceCreate, 
             repo.add(session, source)
     except IntegrityError:
         raise Conflict(f"tile source {body.name!r} already exists", code="tile_source_exists") from None
+    forget_cached_sources()
     return source
 
 
@@ -196,17 +227,18 @@ def get_source(session: Session, ref: str) -> TileSource:
 def delete_source(session: Session, settings: Settings, ref: str) -> None:
     """Forget a source; its file stays (it may be registered again), its upstream cache goes."""
     source = get_source(session, ref)
-    cache_dir = _cache_dir(settings, TileSettings(), source) if source.url else None
+    cache_dir = _cache_dir(settings, tile_settings(), source) if source.url else None
     repo.delete(session, source)
+    forget_cached_sources()
     if cache_dir is not None:
         shutil.rmtree(cache_dir, ignore_errors=True)
 
 
 def open_store(settings: Settings, source: TileSource) -> MBTilesStore | PMTilesStore | UpstreamStore:
     if source.url:
-        tile_settings = TileSettings()
-        return UpstreamStore(source.url, source.format, _cache_dir(settings, tile_settings, source),
-                             tile_settings.upstream_max_age_s, tile_settings.upstream_timeout_s)
+        options = tile_settings()
+        return UpstreamStore(source.url, source.format, _cache_dir(settings, options, source),
+                             options.upstream_max_age_s, options.upstream_timeout_s)
     try:
         return open_tile_file(source_file_path(settings, source))
     except TileFileError as exc:
@@ -237,7 +269,7 @@ def read_tile(settings: Settings, source: TileSource, z: int, x: int, y: int, ex
     if data is None:
         return None
     etag = '"' + hashlib.blake2b(data, digest_size=16).hexdigest() + '"'
-    return TileBody(bytes(data), MEDIA_TYPES[source.format], store.encoding, etag, TileSettings().browser_max_age_s)
+    return TileBody(bytes(data), MEDIA_TYPES[source.format], store.encoding, etag, tile_settings().browser_max_age_s)
 
 
 def tile_url_template(source: TileSource, base_url: str) -> str:

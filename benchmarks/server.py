@@ -1,0 +1,454 @@
+"""Benchmark the web service end to end over loopback HTTP.
+
+    python -m benchmarks.server [--quick] [--database-url URL] [--operators N] [--load-s S]
+
+Starts ``posefix serve`` (its own process, embedded worker on SQLite) on a fresh data
+directory, then measures, as a client would see it:
+
+- import: upload of a one-hour 100 Hz run (360,001 samples, 3,601 keyframes) as CSV, from
+  the first byte sent to the keyframes GeoJSON being served (target ≤ 3 s);
+- latency p50/p95 of the keyframes GeoJSON, a preview with one moved keyframe (target
+  p95 ≤ 100 ms) and an edit submission, on that 3,601-keyframe run;
+- tiles per second from a PMTiles and an MBTiles file: read in-process, and served over
+  HTTP to 8 concurrent clients;
+- load: N operators (default 50) for S seconds (default 60), each logged in with its own
+  session and looping over "load the run's keyframes, drag (preview), fetch 6 tiles" with
+  0.5-1.5 s of thinking between actions (target: no errors, p95 ≤ 250 ms).
+
+``--quick`` shrinks everything (10 min run, 10 operators for 10 s) to check the
+benchmark itself in about a minute. Prints one table: figure, target, and their ratio
+(ours / target: at most 1.00 meets a latency or time target; at least 1.00 meets a rate).
+Figures are wall-clock on this machine and move with what else runs on it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import random
+import shutil
+import signal
+import socket
+import sqlite3
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+ADMIN = ("bench-admin", "bench-admin-password")
+OPERATOR_PASSWORD = "bench-operator-password"
+
+
+@dataclass
+class Row:
+    metric: str
+    figure: float
+    unit: str
+    target: float | None
+    higher_is_better: bool = False
+    note: str = ""
+
+    def ratio(self) -> float | None:
+        return None if not self.target else self.figure / self.target
+
+    def verdict(self) -> str:
+        ratio = self.ratio()
+        if ratio is None:
+            return ""
+        return "meets" if (ratio >= 1.0 if self.higher_is_better else ratio <= 1.0) else "MISSES"
+
+
+@dataclass
+class Samples:
+    latencies_s: list[float] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+    by_kind: dict[str, list[float]] = field(default_factory=dict)
+
+    def add(self, kind: str, seconds: float) -> None:
+        self.latencies_s.append(seconds)
+        self.by_kind.setdefault(kind, []).append(seconds)
+
+    def p(self, q: float) -> float:
+        return float(np.percentile(self.latencies_s, q)) * 1000.0 if self.latencies_s else float("nan")
+
+
+# ----------------------------------------------------------------------------- the server
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def prepare_database(env: dict[str, str], n_operators: int) -> None:
+    """Migrate and create the accounts in-process (same code as `posefix users create`)."""
+    os.environ.update(env)
+    from posefix.commands.server import upgrade_database
+    from posefix.config import Settings
+    from posefix.db import Database
+    from posefix.users.models import Role
+    from posefix.users.service import create_user
+
+    settings = Settings()
+    upgrade_database(settings.resolved_database_url)
+    db = Database(settings.resolved_database_url)
+    try:
+        with db.transaction() as session:
+            create_user(session, ADMIN[0], ADMIN[1], Role.admin)
+            for i in range(n_operators):
+                create_user(session, f"bench-op{i:03d}", OPERATOR_PASSWORD, Role.operator)
+    finally:
+        db.dispose()
+
+
+def start_server(env: dict[str, str], port: int, log_path: Path) -> subprocess.Popen:
+    log = open(log_path, "wb")
+    process = subprocess.Popen(
+        [str(Path(sys.executable).parent / "posefix"), "serve", "--host", "127.0.0.1", "--port", str(port), "--no-migrate"],
+        env={**os.environ, **env}, stdout=log, stderr=subprocess.STDOUT, cwd=REPO,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"the server exited with {process.returncode}; see {log_path}")
+        try:
+            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1).status_code == 200:
+                return process
+        except httpx.TransportError:
+            time.sleep(0.2)
+    process.kill()
+    raise RuntimeError(f"the server did not answer /healthz within 60 s; see {log_path}")
+
+
+def login(base: str, username: str, password: str) -> httpx.Client:
+    client = httpx.Client(base_url=base, headers={"Origin": base}, timeout=120)
+    response = client.post("/api/v1/auth/login", json={"username": username, "password": password})
+    response.raise_for_status()
+    return client
+
+
+# ----------------------------------------------------------------------------- the run
+
+
+def make_run_csv(path: Path, duration_s: float, rate_hz: float) -> int:
+    from posefix.core.simulate import simulate
+    from posefix.io import write_run
+
+    run = simulate(duration_s=duration_s, rate_hz=rate_hz, seed=11, edit_every_s=0).run
+    write_run(run, path, fmt="csv")
+    return run.n
+
+
+def import_run(admin: httpx.Client, csv_path: Path, name: str) -> tuple[float, int]:
+    """Seconds from starting the upload to the keyframes being served, and the run id."""
+    started = time.perf_counter()
+    with open(csv_path, "rb") as handle:
+        response = admin.post("/api/v1/runs", data={"name": name}, files={"file": (csv_path.name, handle, "text/csv")})
+    if response.status_code != 201:
+        raise RuntimeError(f"upload failed: {response.status_code} {response.text[:300]}")
+    run_id = response.json()["id"]
+    keyframes = admin.get(f"/api/v1/runs/{run_id}/keyframes")
+    keyframes.raise_for_status()
+    return time.perf_counter() - started, run_id
+
+
+def timed(fn) -> float:  # type: ignore[no-untyped-def]
+    started = time.perf_counter()
+    fn()
+    return time.perf_counter() - started
+
+
+def preview_body(features: list[dict], revision: int, rng: random.Random) -> dict:
+    """Move one adjustable keyframe by 3-8 m in a random direction."""
+    adjustable = [f for f in features if f["properties"]["adjustable"] and not f["properties"]["locked"]]
+    feature = rng.choice(adjustable or features)
+    lon, lat = feature["geometry"]["coordinates"][:2]
+    distance_m, bearing = rng.uniform(3.0, 8.0), rng.uniform(0, 2 * np.pi)
+    d_lat = distance_m * np.cos(bearing) / 111_320.0
+    d_lon = distance_m * np.sin(bearing) / (111_320.0 * np.cos(np.radians(lat)))
+    return {"base_revision": revision, "moves": [{"index": feature["properties"]["index"], "lon": lon + d_lon,
+                                                  "lat": lat + d_lat}], "deleted": []}
+
+
+def wait_for_job(client: httpx.Client, job_id: int, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        status = client.get(f"/api/v1/jobs/{job_id}").json()["status"]
+        if status == "succeeded":
+            return
+        if status == "dead":
+            raise RuntimeError(f"job {job_id} died")
+        time.sleep(0.05)
+    raise RuntimeError(f"job {job_id} did not finish in {timeout_s} s")
+
+
+def latency_rows(admin: httpx.Client, run_id: int, n_keyframes: int, repeats: int) -> list[Row]:
+    rng = random.Random(5)
+    keyframes = Samples()
+    for _ in range(repeats):
+        keyframes.latencies_s.append(timed(lambda: admin.get(f"/api/v1/runs/{run_id}/keyframes").raise_for_status()))
+    collection = admin.get(f"/api/v1/runs/{run_id}/keyframes").json()
+    features, revision = collection["features"], collection["revision"]
+    previews = Samples()
+    for _ in range(repeats):
+        body = preview_body(features, revision, rng)
+        previews.latencies_s.append(timed(lambda: admin.post(f"/api/v1/runs/{run_id}/preview", json=body).raise_for_status()))
+    edits = Samples()
+    for _ in range(max(3, repeats // 5)):
+        body = preview_body(features, revision, rng)
+        body["comment"] = "benchmark"
+        started = time.perf_counter()
+        response = admin.post(f"/api/v1/runs/{run_id}/edits", json=body)
+        edits.latencies_s.append(time.perf_counter() - started)
+        if response.status_code != 202:
+            raise RuntimeError(f"edit refused: {response.status_code} {response.text[:300]}")
+        wait_for_job(admin, response.json()["job_id"])
+        revision = response.json()["revision"]
+    label = f"{n_keyframes:,}-keyframe run"
+    return [
+        Row(f"keyframes GeoJSON p50 ({label})", keyframes.p(50), "ms", None),
+        Row(f"keyframes GeoJSON p95 ({label})", keyframes.p(95), "ms", None),
+        Row(f"preview p50 ({label})", previews.p(50), "ms", None),
+        Row(f"preview p95 ({label})", previews.p(95), "ms", 100.0),
+        Row(f"edit submission p50 ({label})", edits.p(50), "ms", None),
+        Row(f"edit submission p95 ({label})", edits.p(95), "ms", None, note="202 returned; re-optimised by the worker"),
+    ]
+
+
+# ----------------------------------------------------------------------------- tiles
+
+
+def write_mbtiles_copy(pmtiles_path: Path, mbtiles_path: Path) -> int:
+    """The same tiles in an MBTiles file (TMS rows), so both containers serve one data set."""
+    from pmtiles.reader import MmapSource, all_tiles
+
+    conn = sqlite3.connect(mbtiles_path)
+    conn.execute("CREATE TABLE metadata (name TEXT, value TEXT)")
+    conn.execute("CREATE TABLE tiles (zoom_level INTEGER, tile_column INTEGER, tile_row INTEGER, tile_data BLOB)")
+    conn.execute("CREATE UNIQUE INDEX tile_index ON tiles (zoom_level, tile_column, tile_row)")
+    with open(pmtiles_path, "rb") as handle:
+        tiles = [(z, x, (1 << z) - 1 - y, data) for (z, x, y), data in all_tiles(MmapSource(handle))]
+    conn.executemany("INSERT INTO tiles VALUES (?, ?, ?, ?)", tiles)
+    conn.executemany("INSERT INTO metadata VALUES (?, ?)", [
+        ("name", "bench"), ("format", "pbf"), ("minzoom", "12"), ("maxzoom", "16"),
+        ("attribution", "© OpenStreetMap contributors"),
+    ])
+    conn.commit()
+    conn.close()
+    return len(tiles)
+
+
+def tile_keys(path: Path) -> list[tuple[int, int, int]]:
+    from pmtiles.reader import MmapSource, all_tiles
+
+    with open(path, "rb") as handle:
+        return [key for key, _ in all_tiles(MmapSource(handle))]
+
+
+def in_process_rate(path: Path, keys: list[tuple[int, int, int]], seconds: float) -> float:
+    from posefix.tiles.stores import open_tile_file
+
+    store = open_tile_file(path)
+    count, started = 0, time.perf_counter()
+    while time.perf_counter() - started < seconds:
+        for z, x, y in keys:
+            assert store.get(z, x, y) is not None
+        count += len(keys)
+    return count / (time.perf_counter() - started)
+
+
+async def http_tile_rate(base: str, cookies: httpx.Cookies, source: str, keys: list[tuple[int, int, int]],
+                         seconds: float, concurrency: int = 8) -> tuple[float, int]:
+    count, errors = 0, 0
+    stop_at = time.perf_counter() + seconds
+    async with httpx.AsyncClient(base_url=base, cookies=cookies, timeout=30) as client:
+        async def fetch_loop(offset: int) -> None:
+            nonlocal count, errors
+            i = offset
+            while time.perf_counter() < stop_at:
+                z, x, y = keys[i % len(keys)]
+                response = await client.get(f"/api/v1/tiles/{source}/{z}/{x}/{y}.pbf")
+                count += 1
+                errors += response.status_code != 200
+                i += concurrency
+
+        started = time.perf_counter()
+        await asyncio.gather(*(fetch_loop(i) for i in range(concurrency)))
+        return count / (time.perf_counter() - started), errors
+
+
+# ----------------------------------------------------------------------------- load
+
+
+async def operator_loop(base: str, username: str, run_id: int, tiles: list[tuple[int, int, int]],
+                        stop_at: float, samples: Samples, seed: int) -> None:
+    rng = random.Random(seed)
+    async with httpx.AsyncClient(base_url=base, headers={"Origin": base}, timeout=30) as client:
+        response = await client.post("/api/v1/auth/login", json={"username": username, "password": OPERATOR_PASSWORD})
+        if response.status_code != 200:
+            samples.errors.append(f"login {username}: {response.status_code}")
+            return
+        features: list[dict] = []
+        revision = 0
+
+        async def request(kind: str, method: str, url: str, **kwargs: object) -> httpx.Response | None:
+            started = time.perf_counter()
+            try:
+                response = await client.request(method, url, **kwargs)
+            except httpx.HTTPError as exc:
+                samples.errors.append(f"{method} {url}: {type(exc).__name__}")
+                return None
+            samples.add(kind, time.perf_counter() - started)
+            if response.status_code >= 400:
+                samples.errors.append(f"{method} {url}: {response.status_code}")
+            return response
+
+        await asyncio.sleep(rng.uniform(0, 1.0))  # operators do not all start at once
+        while time.perf_counter() < stop_at:
+            if not features or rng.random() < 0.1:
+                response = await request("keyframes", "GET", f"/api/v1/runs/{run_id}/keyframes")
+                if response is not None and response.status_code == 200:
+                    collection = response.json()
+                    features, revision = collection["features"], collection["revision"]
+            elif rng.random() < 0.6:
+                await request("preview", "POST", f"/api/v1/runs/{run_id}/preview",
+                              json=preview_body(features, revision, rng))
+            else:
+                start = rng.randrange(len(tiles))
+                for z, x, y in (tiles * 2)[start:start + 6]:
+                    await request("tile", "GET", f"/api/v1/tiles/bench-pm/{z}/{x}/{y}.pbf")
+            await asyncio.sleep(rng.uniform(0.5, 1.5))
+
+
+async def run_load(base: str, n_operators: int, seconds: float, run_id: int,
+                   tiles: list[tuple[int, int, int]]) -> Samples:
+    samples = Samples()
+    stop_at = time.perf_counter() + seconds
+    await asyncio.gather(*(
+        operator_loop(base, f"bench-op{i:03d}", run_id, tiles, stop_at, samples, seed=i) for i in range(n_operators)
+    ))
+    return samples
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def print_table(rows: list[Row]) -> None:
+    print()
+    header = f"{'metric':<52} {'ours':>11} {'target':>11} {'ratio':>7}  verdict"
+    print(header)
+    print("-" * len(header))
+    for row in rows:
+        target = "" if row.target is None else f"{row.target:,.0f}"
+        if row.target is not None:
+            target = ("≥ " if row.higher_is_better else "≤ ") + target
+        ratio = row.ratio()
+        print(f"{row.metric:<52} {row.figure:>8,.1f} {row.unit:<3}{target:>10} "
+              f"{'' if ratio is None else f'{ratio:.2f}':>7}  {row.verdict()}{('  ' + row.note) if row.note else ''}")
+    print()
+    print("ratio = ours / target: ≤ 1.00 meets a time target, ≥ 1.00 meets a rate target.")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small run and a short load: checks the benchmark")
+    parser.add_argument("--database-url", default="", help="PostgreSQL URL (default: SQLite in a temp dir)")
+    parser.add_argument("--operators", type=int, default=None, help="simulated operators (default 50; quick 10)")
+    parser.add_argument("--load-s", type=float, default=None, help="load duration in s (default 60; quick 10)")
+    parser.add_argument("--keep", action="store_true", help="keep the temporary data directory")
+    args = parser.parse_args()
+    quick = args.quick
+    n_operators = args.operators or (10 if quick else 50)
+    load_s = args.load_s or (10.0 if quick else 60.0)
+    duration_s, rate_hz = (600.0, 100.0) if quick else (3600.0, 100.0)
+
+    workdir = Path(tempfile.mkdtemp(prefix="posefix-bench-"))
+    env = {
+        "POSEFIX_DATA_DIR": str(workdir / "var"),
+        "POSEFIX_ENVIRONMENT": "development",
+        "POSEFIX_OPERATORS_SEE_ALL_RUNS": "true",
+        "POSEFIX_LOG_LEVEL": "WARNING",
+        "POSEFIX_DATABASE_URL": args.database_url,
+    }
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    rows: list[Row] = []
+    server = None
+    try:
+        print(f"· data in {workdir}; creating {n_operators} operators", flush=True)
+        prepare_database(env, n_operators)
+        server = start_server(env, port, workdir / "server.log")
+        admin = login(base, *ADMIN)
+
+        print(f"· simulating a {duration_s / 60:.0f} min {rate_hz:g} Hz run", flush=True)
+        csv_path = workdir / "run.csv"
+        n_samples = make_run_csv(csv_path, duration_s, rate_hz)
+        import_times = []
+        run_id = 0
+        for attempt in range(1 if quick else 3):
+            seconds, run_id = import_run(admin, csv_path, f"bench run {attempt}")
+            import_times.append(seconds)
+        n_keyframes = len(admin.get(f"/api/v1/runs/{run_id}/keyframes").json()["features"])
+        rows.append(Row(f"import {n_samples:,} samples → keyframes ready (median)", statistics.median(import_times),
+                        "s", 3.0, note=f"CSV {csv_path.stat().st_size / 1e6:.0f} MB over loopback"))
+
+        print(f"· latencies on the {n_keyframes}-keyframe run", flush=True)
+        rows += latency_rows(admin, run_id, n_keyframes, repeats=15 if quick else 50)
+
+        print("· tiles", flush=True)
+        from posefix.basemap import build_basemap
+
+        tiles_dir = workdir / "var" / "tiles"
+        build_basemap(REPO / "data" / "osm" / "helsinki.osm.pbf", tiles_dir / "bench.pmtiles")
+        write_mbtiles_copy(tiles_dir / "bench.pmtiles", tiles_dir / "bench.mbtiles")
+        for name, file in (("bench-pm", "bench.pmtiles"), ("bench-mb", "bench.mbtiles")):
+            response = admin.post("/api/v1/tile-sources", json={"name": name, "kind": "street", "path": f"tiles/{file}"})
+            response.raise_for_status()
+        keys = tile_keys(tiles_dir / "bench.pmtiles")
+        seconds = 1.0 if quick else 3.0
+        for label, file in (("PMTiles", "bench.pmtiles"), ("MBTiles", "bench.mbtiles")):
+            rows.append(Row(f"tiles/s in-process ({label})", in_process_rate(tiles_dir / file, keys, seconds),
+                            "/s", 5000.0, higher_is_better=True))
+        for label, source in (("PMTiles", "bench-pm"), ("MBTiles", "bench-mb")):
+            rate, errors = asyncio.run(http_tile_rate(base, admin.cookies, source, keys, seconds * 2))
+            rows.append(Row(f"tiles/s over HTTP, 8 clients ({label})", rate, "/s", 300.0, higher_is_better=True,
+                            note=f"{errors} errors" if errors else ""))
+
+        print(f"· load: {n_operators} operators for {load_s:.0f} s", flush=True)
+        load = asyncio.run(run_load(base, n_operators, load_s, run_id, keys[-40:]))
+        rows.append(Row(f"load: requests ({n_operators} operators, {load_s:.0f} s)", len(load.latencies_s), "",
+                        None, note=f"{len(load.latencies_s) / load_s:.0f} req/s"))
+        rows.append(Row("load: errors", len(load.errors), "", None,
+                        note="target 0" + (f"; first: {load.errors[0]}" if load.errors else "")))
+        rows.append(Row("load: p50", load.p(50), "ms", None))
+        rows.append(Row("load: p95", load.p(95), "ms", 250.0))
+        for kind, latencies in sorted(load.by_kind.items()):
+            rows.append(Row(f"load: p95 of {kind} requests", float(np.percentile(latencies, 95)) * 1000.0, "ms", None,
+                            note=f"{len(latencies)} requests"))
+        admin.close()
+    finally:
+        if server is not None:
+            server.send_signal(signal.SIGINT)
+            try:
+                server.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                server.kill()
+        if not args.keep:
+            shutil.rmtree(workdir, ignore_errors=True)
+    print_table(rows)
+    load_errors = next((row.figure for row in rows if row.metric == "load: errors"), 0)
+    if load_errors:
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
