@@ -63,6 +63,15 @@ class Server:
         r.raise_for_status()
         return c
 
+    def get_json(self, username: str, path: str):
+        c = self.client(username)
+        try:
+            r = c.get(path)
+            r.raise_for_status()
+            return r.json()
+        finally:
+            c.close()
+
     def upload_run(self, name: str) -> int:
         """Upload the simulated Helsinki drive with two cameras' images; wait until keyframes are ready."""
         c = self.client("admin")

@@ -30,7 +30,16 @@ def open_run(page, server, run_id: int) -> None:
 
 
 def keyframe_px(page, index: int) -> tuple[float, float]:
-    """Page coordinates of keyframe `index` as drawn now."""
+    """Page coordinates of keyframe `index` once it is drawn there (GeoJSON updates render
+    asynchronously, so wait until the map's hit test at that pixel finds it)."""
+    page.wait_for_function(
+        """(i) => { const m = window.__posefixMap; if (m.isMoving()) return false;
+            const f = m.getSource('pf-keyframes')._data; const c = (f.geojson || f).features[i].geometry.coordinates;
+            const p = m.project(c);
+            return m.queryRenderedFeatures([p.x, p.y], {layers: ['pf-kf-hit']}).some(g => g.properties.i === i); }""",
+        arg=index,
+        timeout=15_000,
+    )
     xy = page.evaluate(
         """(i) => { const m = window.__posefixMap;
             const f = m.getSource('pf-keyframes')._data;

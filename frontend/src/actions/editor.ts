@@ -14,7 +14,7 @@ import {
   historyRedo,
   historyUndo,
 } from "../state/history";
-import type { Edits, LonLat, RunDoc } from "../state/types";
+import type { Drift, Edits, LonLat, Refusal, RunDoc } from "../state/types";
 import type { EditAction } from "./edits";
 
 /** Apply `action`: a new history step, or the refusal placed at `at` (edits unchanged). */
@@ -87,10 +87,17 @@ export function selectNextAdjustable(s: EditorState): EditorState {
   return s;
 }
 
-export function setPreview(s: EditorState, forEdits: Edits, positions: LonLat[], solverTimeS: number | null): EditorState {
+export function setPreview(
+  s: EditorState,
+  forEdits: Edits,
+  positions: LonLat[],
+  solverTimeS: number | null,
+  drift: Drift | null = null,
+  flags: Refusal[] = [],
+): EditorState {
   return {
     ...s,
-    preview: { positions, forEdits, solverTimeS },
+    preview: { positions, forEdits, solverTimeS, drift, flags },
     previewPending: false,
     lastSolverTimeS: solverTimeS ?? s.lastSolverTimeS,
     error: null,

@@ -27,24 +27,3 @@ export async function unwrap<T>(call: Promise<{ data?: T; error?: unknown; respo
 
 export { ApiError };
 
-/** Routes not (yet) in the generated spec: same error handling, untyped. */
-export async function request<T>(method: string, path: string, body?: unknown, headers: Record<string, string> = {}, signal?: AbortSignal): Promise<T> {
-  return unwrap<T>(
-    fetch(`/api/v1${path}`, {
-      method,
-      credentials: "same-origin",
-      headers: { Accept: "application/json", ...(body === undefined ? {} : { "Content-Type": "application/json" }), ...headers },
-      body: body === undefined ? undefined : JSON.stringify(body),
-      signal,
-    }).then(async (response) => {
-      const text = await response.text();
-      let data: unknown = text;
-      try {
-        data = text ? JSON.parse(text) : null;
-      } catch {
-        /* keep text */
-      }
-      return response.ok ? { data: data as T, response } : { error: data, response };
-    }),
-  );
-}

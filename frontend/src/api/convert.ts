@@ -50,7 +50,17 @@ export function docFromKeyframes(runId: string, name: string, fc: Record<string,
     rules: rulesFromJson(fc.rules as never),
     keyframes,
     drift: driftFrom(fc.drift),
+    baseMoves: new Map(),
   };
+}
+
+/** Moves of a revision's cumulative edit set (`[[k, lon, lat, alt], ...]`). */
+export function baseMovesFrom(editSet: Record<string, unknown> | null | undefined): Map<number, LonLat> {
+  const out = new Map<number, LonLat>();
+  for (const m of (editSet?.moves ?? []) as unknown[]) {
+    if (Array.isArray(m) && m.length >= 3) out.set(Number(m[0]), [Number(m[1]), Number(m[2])]);
+  }
+  return out;
 }
 
 /** The drift estimate, shown as an offset and a spread (m) when the server gives them. */
@@ -58,10 +68,16 @@ export function driftFrom(raw: unknown): Drift | null {
   if (!raw || typeof raw !== "object") return null;
   const d = raw as Record<string, unknown>;
   const num = (v: unknown) => (typeof v === "number" && Number.isFinite(v) ? v : null);
-  let offset = num(d.offset_m) ?? num(d.magnitude_m);
+  let offset = num(d.offset_m);
   const enu = d.offset_enu_m;
-  if (offset === null && Array.isArray(enu) && enu.length >= 2) offset = Math.hypot(Number(enu[0]), Number(enu[1]));
-  return { offset_m: offset, spread_m: num(d.spread_m), raw };
+  if (offset === null && Array.isArray(enu) && num(enu[0]) !== null && num(enu[1]) !== null) offset = Math.hypot(Number(enu[0]), Number(enu[1]));
+  return {
+    offset_m: offset,
+    spread_m: num(d.spread_m),
+    max_bias_m: num(d.max_bias_m),
+    detected: typeof d.detected === "boolean" ? d.detected : null,
+    n_edits: num(d.n_edits),
+  };
 }
 
 /** The body of a preview or submit: moves as `{index, lon, lat}`, deletions as indices. */

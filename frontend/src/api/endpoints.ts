@@ -1,7 +1,7 @@
 /** One function per API route the front end uses. */
-import type { Edits, LonLat, RunDoc } from "../state/types";
-import { type Schemas, client, request, unwrap } from "./client";
-import { docFromKeyframes, editsBody } from "./convert";
+import type { Drift, Edits, LonLat, Refusal, RunDoc } from "../state/types";
+import { type Schemas, client, unwrap } from "./client";
+import { baseMovesFrom, docFromKeyframes, driftFrom, editsBody } from "./convert";
 
 export type UserPublic = Schemas["UserPublic"];
 export type RunSummary = Schemas["RunPublic"];
@@ -11,8 +11,9 @@ export type ImagePublic = Schemas["ImagePublic"];
 export interface PreviewResult {
   positions: LonLat[];
   solverTimeS: number | null;
-  refusals: { index: number; reason: string; message: string }[];
-  raw: Record<string, unknown>;
+  refusals: Refusal[];
+  flags: Refusal[];
+  drift: Drift | null;
 }
 
 export const api = {
@@ -30,27 +31,38 @@ export const api = {
     const fc = await unwrap(
       client.GET("/api/v1/runs/{run_id}/keyframes", { params: { path: { run_id: Number(id) }, query: revision === undefined ? {} : { revision } }, parseAs: "json" }),
     );
-    return docFromKeyframes(id, run.name, fc as Record<string, unknown>);
+    const doc = docFromKeyframes(id, run.name, fc as Record<string, unknown>);
+    if (!doc.keyframes.some((k) => k.edited)) return doc;
+    // The rules judge order against where earlier moves put their keyframes.
+    const rev = await unwrap(client.GET("/api/v1/runs/{run_id}/revisions/{number}", { params: { path: { run_id: Number(id), number: doc.revision } } }));
+    return { ...doc, baseMoves: baseMovesFrom(rev.edit_set) };
   },
 
   async preview(id: string, baseRevision: number, edits: Edits, signal?: AbortSignal): Promise<PreviewResult> {
     const b = editsBody(edits);
-    const raw = await request<Record<string, unknown>>("POST", `/runs/${encodeURIComponent(id)}/preview`, { base_revision: baseRevision, moves: b.moves, deleted: b.deleted }, {}, signal);
-    const solver = (raw.solver ?? {}) as Record<string, unknown>;
-    const t = solver.time_s;
+    const raw = await unwrap(
+      client.POST("/api/v1/runs/{run_id}/preview", { params: { path: { run_id: Number(id) } }, body: { base_revision: baseRevision, moves: b.moves, deleted: b.deleted }, signal }),
+    );
+    const t = raw.solver?.time_s;
     return {
-      positions: ((raw.positions ?? []) as number[][]).map((p) => [p[0], p[1]] as LonLat),
-      solverTimeS: typeof t === "number" ? t : null,
-      refusals: (raw.refusals ?? []) as PreviewResult["refusals"],
-      raw,
+      positions: raw.positions.map((p) => [p[0], p[1]] as LonLat),
+      solverTimeS: typeof t === "number" ? t : raw.time_ms / 1000,
+      refusals: raw.refusals,
+      flags: raw.flags,
+      drift: driftFrom(raw.drift),
     };
   },
 
   submitEdits: (id: string, baseRevision: number, edits: Edits, comment: string) =>
-    request<{ batch_id: number | string; job_id: number | string }>("POST", `/runs/${encodeURIComponent(id)}/edits`, { base_revision: baseRevision, ...editsBody(edits), comment }, { "If-Match": `"${baseRevision}"` }),
+    unwrap(
+      client.POST("/api/v1/runs/{run_id}/edits", {
+        params: { path: { run_id: Number(id) }, header: { "If-Match": `"${baseRevision}"` } },
+        body: { base_revision: baseRevision, ...editsBody(edits), comment: comment || null },
+      }),
+    ),
 
   getJob: (id: string | number) => unwrap(client.GET("/api/v1/jobs/{job_id}", { params: { path: { job_id: Number(id) } } })),
-  listRevisions: (id: string) => request<unknown>("GET", `/runs/${encodeURIComponent(id)}/revisions`),
+  listRevisions: (id: string) => unwrap(client.GET("/api/v1/runs/{run_id}/revisions", { params: { path: { run_id: Number(id) } } })),
 
   listTileSources: () => unwrap(client.GET("/api/v1/tile-sources")),
   addTileSource: (body: Schemas["TileSourceCreate"]) => unwrap(client.POST("/api/v1/tile-sources", { body })),

@@ -193,6 +193,53 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/runs/{run_id}/diff": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Diff
+         * @description Per-keyframe horizontal displacement between two ready revisions.
+         */
+        get: operations["diff_api_v1_runs__run_id__diff_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/runs/{run_id}/edits": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * List Edits
+         * @description Every edit ever submitted on the run (author, time, task), oldest first.
+         */
+        get: operations["list_edits_api_v1_runs__run_id__edits_get"];
+        put?: never;
+        /**
+         * Submit Edits
+         * @description Submit a batch made against a base revision; the worker writes the next revision.
+         *
+         *     409 ``stale_revision`` (with ``current_revision``) when someone else's batch came first;
+         *     422 ``edit_refused`` with a reason per refused edit.
+         */
+        post: operations["submit_edits_api_v1_runs__run_id__edits_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/runs/{run_id}/export": {
         parameters: {
             query?: never;
@@ -270,6 +317,46 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/runs/{run_id}/preview": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Preview
+         * @description Re-optimise keyframes with proposed, uncommitted edits (refused moves are left out and listed).
+         */
+        post: operations["preview_api_v1_runs__run_id__preview_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/runs/{run_id}/revert": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Revert
+         * @description Make a new revision with the edits of ``to_revision`` (history is kept).
+         */
+        post: operations["revert_api_v1_runs__run_id__revert_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/runs/{run_id}/review": {
         parameters: {
             query?: never;
@@ -284,6 +371,40 @@ export interface paths {
          * @description Accept (status accepted, verified) or reject (back to in_review) the latest revision.
          */
         post: operations["review_run_api_v1_runs__run_id__review_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/runs/{run_id}/revisions": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /** List Revisions */
+        get: operations["list_revisions_api_v1_runs__run_id__revisions_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/runs/{run_id}/revisions/{number}": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /** Get Revision */
+        get: operations["get_revision_api_v1_runs__run_id__revisions__number__get"];
+        put?: never;
+        post?: never;
         delete?: never;
         options?: never;
         head?: never;
@@ -499,6 +620,104 @@ export interface paths {
 export type webhooks = Record<string, never>;
 export interface components {
     schemas: {
+        /** DiffEntry */
+        DiffEntry: {
+            /** Displacement M */
+            displacement_m: number;
+            /** From */
+            from: number[];
+            /** Index */
+            index: number;
+            /** To */
+            to: number[];
+        };
+        /** DiffResponse */
+        DiffResponse: {
+            /**
+             * Changed
+             * @description keyframes that moved more than 1 mm
+             */
+            changed: number;
+            /**
+             * Displacement M
+             * @description horizontal displacement per keyframe, metres
+             */
+            displacement_m: number[];
+            /** From */
+            from: number;
+            /**
+             * Keyframes
+             * @description the keyframes that moved
+             */
+            keyframes: components["schemas"]["DiffEntry"][];
+            /** Max M */
+            max_m: number;
+            /** Mean M */
+            mean_m: number;
+            /** To */
+            to: number;
+        };
+        /** EditBatchAccepted */
+        EditBatchAccepted: {
+            /** Batch Id */
+            batch_id: number;
+            /** Flags */
+            flags: components["schemas"]["RefusalOut"][];
+            /** Job Id */
+            job_id: number;
+            /**
+             * Revision
+             * @description the revision this batch will become
+             */
+            revision: number;
+        };
+        /** EditBatchIn */
+        EditBatchIn: {
+            /**
+             * Accept
+             * @default false
+             */
+            accept: boolean;
+            /**
+             * Base Revision
+             * @description or header If-Match
+             */
+            base_revision?: number | null;
+            /** Comment */
+            comment?: string | null;
+            /** Deleted */
+            deleted?: number[];
+            /** Moves */
+            moves?: components["schemas"]["MoveIn"][];
+            /** Task Id */
+            task_id?: number | null;
+        };
+        /** EditPublic */
+        EditPublic: {
+            /** Alt */
+            alt: number | null;
+            /** Author Id */
+            author_id: number | null;
+            /** Batch Id */
+            batch_id: number;
+            /**
+             * Created At
+             * Format: date-time
+             */
+            created_at: string;
+            /** Id */
+            id: number;
+            /** K */
+            k: number;
+            /** Kind */
+            kind: string;
+            /** Lat */
+            lat: number | null;
+            /** Lon */
+            lon: number | null;
+            /** Task Id */
+            task_id: number | null;
+        };
         /**
          * ErrorBody
          * @description Every error response: a machine-readable code and a human sentence.
@@ -596,12 +815,151 @@ export interface components {
             /** Username */
             username: string;
         };
+        /** MoveIn */
+        MoveIn: {
+            /**
+             * Alt
+             * @description metres; omit for a 2-D move
+             */
+            alt?: number | null;
+            /**
+             * Index
+             * @description keyframe index
+             */
+            index: number;
+            /** Lat */
+            lat: number;
+            /** Lon */
+            lon: number;
+        };
+        /** PreviewRequest */
+        PreviewRequest: {
+            /** Base Revision */
+            base_revision: number;
+            /** Deleted */
+            deleted?: number[];
+            /** Moves */
+            moves?: components["schemas"]["MoveIn"][];
+        };
+        /** PreviewResponse */
+        PreviewResponse: {
+            /** Base Revision */
+            base_revision: number;
+            /** Drift */
+            drift: {
+                [key: string]: unknown;
+            };
+            /** Flags */
+            flags: components["schemas"]["RefusalOut"][];
+            /**
+             * Positions
+             * @description [lon, lat] per keyframe
+             */
+            positions: number[][];
+            /** Refusals */
+            refusals: components["schemas"]["RefusalOut"][];
+            /** Solver */
+            solver: {
+                [key: string]: unknown;
+            };
+            /** Time Ms */
+            time_ms: number;
+        };
+        /** RefusalOut */
+        RefusalOut: {
+            /** Index */
+            index: number;
+            /** Message */
+            message: string;
+            /** Reason */
+            reason: string;
+        };
+        /** RevertRequest */
+        RevertRequest: {
+            /** Base Revision */
+            base_revision?: number | null;
+            /** Comment */
+            comment?: string | null;
+            /** To Revision */
+            to_revision: number;
+        };
         /** ReviewRequest */
         ReviewRequest: {
             /** Comment */
             comment?: string | null;
             /** Decision */
             decision: string;
+        };
+        /** RevisionDetail */
+        RevisionDetail: {
+            /** Batch Id */
+            batch_id: number | null;
+            /**
+             * Created At
+             * Format: date-time
+             */
+            created_at: string;
+            /** Created By */
+            created_by: number | null;
+            /** Drift */
+            drift: {
+                [key: string]: unknown;
+            } | null;
+            /** Edit Set */
+            edit_set: {
+                [key: string]: unknown;
+            };
+            /** Kind */
+            kind: string;
+            /** Max Correction M */
+            max_correction_m: number;
+            /** N Deleted */
+            n_deleted: number;
+            /** N Moves */
+            n_moves: number;
+            /** Number */
+            number: number;
+            /** Solver */
+            solver: {
+                [key: string]: unknown;
+            } | null;
+        };
+        /** RevisionList */
+        RevisionList: {
+            /** Head Revision */
+            head_revision: number;
+            /** Items */
+            items: components["schemas"]["RevisionPublic"][];
+        };
+        /** RevisionPublic */
+        RevisionPublic: {
+            /** Batch Id */
+            batch_id: number | null;
+            /**
+             * Created At
+             * Format: date-time
+             */
+            created_at: string;
+            /** Created By */
+            created_by: number | null;
+            /** Drift */
+            drift: {
+                [key: string]: unknown;
+            } | null;
+            /** Kind */
+            kind: string;
+            /** Max Correction M */
+            max_correction_m: number;
+            /** N Deleted */
+            n_deleted: number;
+            /** N Moves */
+            n_moves: number;
+            /** Number */
+            number: number;
+            /** Solver */
+            solver: {
+                [key: string]: unknown;
+            } | null;
         };
         /**
          * Role
@@ -1568,6 +1926,212 @@ export interface operations {
             };
         };
     };
+    diff_api_v1_runs__run_id__diff_get: {
+        parameters: {
+            query: {
+                from: number;
+                to: number;
+            };
+            header?: never;
+            path: {
+                run_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["DiffResponse"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Conflict */
+            409: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Unprocessable */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+        };
+    };
+    list_edits_api_v1_runs__run_id__edits_get: {
+        parameters: {
+            query?: {
+                batch_id?: number | null;
+                limit?: number;
+                offset?: number;
+            };
+            header?: never;
+            path: {
+                run_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["EditPublic"][];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    submit_edits_api_v1_runs__run_id__edits_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                /** @description "<revision>" the edits were made on */
+                "If-Match"?: string | null;
+            };
+            path: {
+                run_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["EditBatchIn"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            202: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["EditBatchAccepted"];
+                };
+            };
+            /** @description Bad request */
+            400: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not allowed */
+            403: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Conflict */
+            409: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Unsupported media type */
+            415: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Unprocessable */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+        };
+    };
     export_run_api_v1_runs__run_id__export_get: {
         parameters: {
             query?: {
@@ -1791,6 +2355,168 @@ export interface operations {
             };
         };
     };
+    preview_api_v1_runs__run_id__preview_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                run_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["PreviewRequest"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["PreviewResponse"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not allowed */
+            403: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Unsupported media type */
+            415: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Unprocessable */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+        };
+    };
+    revert_api_v1_runs__run_id__revert_post: {
+        parameters: {
+            query?: never;
+            header?: {
+                "If-Match"?: string | null;
+            };
+            path: {
+                run_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody: {
+            content: {
+                "application/json": components["schemas"]["RevertRequest"];
+            };
+        };
+        responses: {
+            /** @description Successful Response */
+            202: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["EditBatchAccepted"];
+                };
+            };
+            /** @description Bad request */
+            400: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not allowed */
+            403: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Conflict */
+            409: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Unsupported media type */
+            415: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Unprocessable */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+        };
+    };
     review_run_api_v1_runs__run_id__review_post: {
         parameters: {
             query?: never;
@@ -1867,6 +2593,114 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+        };
+    };
+    list_revisions_api_v1_runs__run_id__revisions_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                run_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["RevisionList"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    get_revision_api_v1_runs__run_id__revisions__number__get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                run_id: number;
+                number: number;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["RevisionDetail"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Conflict */
+            409: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
                 };
             };
         };

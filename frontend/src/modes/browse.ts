@@ -14,8 +14,22 @@ export function modeBrowse(): Mode {
     enter(ctx: ModeContext) {
       const { map, store } = ctx;
       const canvas = map.getCanvasContainer();
-      const hitIndex = (e: { features?: { properties: Record<string, unknown> }[] }) =>
-        e.features && e.features.length ? Number(e.features[0].properties.i) : null;
+      // The keyframe nearest the pointer among those under it (hit circles overlap when zoomed out).
+      const hitIndex = (e: { point: { x: number; y: number }; features?: { properties: Record<string, unknown>; geometry: unknown }[] }) => {
+        if (!e.features || e.features.length === 0) return null;
+        let best: number | null = null;
+        let bestD = Infinity;
+        for (const f of e.features) {
+          const c = (f.geometry as { coordinates: [number, number] }).coordinates;
+          const p = map.project(c);
+          const d = (p.x - e.point.x) ** 2 + (p.y - e.point.y) ** 2;
+          if (d < bestD) {
+            bestD = d;
+            best = Number(f.properties.i);
+          }
+        }
+        return best;
+      };
 
       const onEnter = () => (canvas.style.cursor = "grab");
       const onLeave = () => (canvas.style.cursor = "");

@@ -16,7 +16,7 @@ function prepared(doc: RunDoc) {
     const project = enuProjector(origin);
     const reported = doc.keyframes.map((k) => project(k.reported) as EnM);
     const editedBefore = new Map<number, EnM>();
-    for (const k of doc.keyframes) if (k.edited) editedBefore.set(k.index, project(k.lonlat));
+    for (const k of doc.keyframes) if (k.edited) editedBefore.set(k.index, project(doc.baseMoves.get(k.index) ?? k.lonlat));
     c = { project, reported, editedBefore };
     cache.set(doc, c);
   }

@@ -5,7 +5,7 @@
 import { distanceM } from "../rules/geodesy";
 import { lockedMask } from "../rules/rules";
 import { type History, historyCurrent, historyNew } from "./history";
-import type { Edits, LonLat, Refusal, RunDoc } from "./types";
+import type { Drift, Edits, LonLat, Refusal, RunDoc } from "./types";
 
 export type ModeName = "browse" | "drag" | "select-range";
 
@@ -16,6 +16,10 @@ export interface Preview {
   positions: LonLat[];
   forEdits: Edits;
   solverTimeS: number | null;
+  /** The drift estimate with these edits. */
+  drift: Drift | null;
+  /** Moves accepted with a flag (e.g. order under the "flag" rule). */
+  flags: Refusal[];
 }
 
 export type SubmitState =
@@ -122,4 +126,9 @@ export function correctionMagnitudes(s: EditorState): number[] {
   if (!s.doc) return [];
   const pos = displayPositions(s);
   return s.doc.keyframes.map((k, i) => distanceM(k.reported, pos[i]));
+}
+
+/** The drift estimate to show: the preview's when current, else the loaded revision's. */
+export function currentDrift(s: EditorState): Drift | null {
+  return previewIsCurrent(s) && s.preview!.drift ? s.preview!.drift : (s.doc?.drift ?? null);
 }

@@ -39,10 +39,15 @@ export interface Keyframe {
   correction_m: number;
 }
 
+/** The engine's GNSS drift estimate (bias of GNSS against the operators' edits). */
 export interface Drift {
+  /** Horizontal size of the mean offset (m), null when not estimable. */
   offset_m: number | null;
   spread_m: number | null;
-  raw: unknown;
+  /** Largest bias along the run (m). */
+  max_bias_m: number | null;
+  detected: boolean | null;
+  n_edits: number | null;
 }
 
 /** A run's keyframes at one revision: what the editor edits against. */
@@ -53,6 +58,8 @@ export interface RunDoc {
   rules: EditRules;
   keyframes: Keyframe[];
   drift: Drift | null;
+  /** Positions the earlier revisions' moves put keyframes at (the rules' `edited_before`). */
+  baseMoves: ReadonlyMap<number, LonLat>;
 }
 
 /** The operator's unsaved edits: what one submit sends. Immutable; replaced on change. */

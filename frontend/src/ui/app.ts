@@ -75,9 +75,10 @@ export function startApp(root: HTMLElement): void {
     if (typeof cleanup === "function") cleanup();
     cleanup = undefined;
     clear(main);
-    const path = location.hash.replace(/^#/, "") || "/";
+    const path = location.hash.replace(/^#/, "").split("?")[0] || "/";
     document.body.dataset.page = path.split("/")[1] || "home";
     if (path === "/login") {
+      if (ctx.user) ctx.setUser(null);
       cleanup = renderLogin(main, ctx);
       return;
     }
@@ -97,7 +98,6 @@ export function startApp(root: HTMLElement): void {
     if (m) cleanup = renderEditor(main, ctx, decodeURIComponent(m[1]));
     else if (path.startsWith("/admin/runs")) cleanup = renderAdminRuns(main, ctx);
     else if (path.startsWith("/admin/tiles")) cleanup = renderAdminTiles(main, ctx);
-    else if (path.startsWith("/login")) cleanup = renderLogin(main, ctx);
     else cleanup = renderHome(main, ctx);
   }
 

@@ -131,7 +131,8 @@ export class EditorController {
         this.store.update((x) => setError(x, `The preview returned ${r.positions.length} positions for ${doc.keyframes.length} keyframes.`));
         return;
       }
-      this.store.update((x) => setPreview(x, edits, r.positions, r.solverTimeS));
+      this.store.update((x) => setPreview(x, edits, r.positions, r.solverTimeS, r.drift, r.flags));
+      if (r.flags.length) this.onNotice(`Accepted with a flag: ${r.flags.map((f) => f.message).join(" ")}`);
     } catch (err) {
       if (abort.signal.aborted || (err instanceof DOMException && err.name === "AbortError")) return;
       if (err instanceof ApiError && err.status === 409) {

@@ -1,6 +1,6 @@
 /** Small DOM panels of the correction view, each a pure function of editor state. */
 import { STATUS_COLORS, STATUS_LABELS } from "../../map/features";
-import { type EditorState, type KeyframeStatus, currentEdits, editCount, keyframeStatuses } from "../../state/editor";
+import { type EditorState, type KeyframeStatus, currentDrift, currentEdits, editCount, keyframeStatuses } from "../../state/editor";
 import { canRedo, canUndo, redoLabel, undoLabel } from "../../state/history";
 import { h } from "../dom";
 
@@ -72,11 +72,15 @@ export function selectionInfo(s: EditorState): HTMLElement {
 }
 
 export function driftInfo(s: EditorState): HTMLElement {
-  const d = s.doc?.drift;
-  if (!d) return h("p", { class: "muted" }, "No drift estimate for this revision.");
+  const d = currentDrift(s);
+  if (!d || (d.offset_m === null && !d.n_edits)) {
+    return h("p", { class: "muted", "data-testid": "drift" }, "No drift estimate yet: it needs moved keyframes.");
+  }
   return h("p", { "data-testid": "drift" },
-    d.offset_m !== null ? `Estimated GNSS drift ${d.offset_m.toFixed(1)} m` : "Drift estimated",
-    d.spread_m !== null ? ` (spread ${d.spread_m.toFixed(1)} m)` : "",
+    d.detected === false ? "No GNSS drift detected" : d.offset_m !== null ? `GNSS offset ${d.offset_m.toFixed(1)} m` : "GNSS drift estimated",
+    d.spread_m !== null && Number.isFinite(d.spread_m) ? ` (spread ${d.spread_m.toFixed(1)} m)` : "",
+    d.max_bias_m !== null && d.max_bias_m > 0 ? `, largest bias ${d.max_bias_m.toFixed(1)} m` : "",
+    d.n_edits ? ` from ${d.n_edits} edit${d.n_edits === 1 ? "" : "s"}` : "",
     ".",
   );
 }
