@@ -11,6 +11,7 @@ import logging
 import os
 import socket
 import threading
+import time
 import traceback
 import uuid
 
@@ -36,6 +37,7 @@ class Worker:
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self.processed = 0
+        self._last_bury = float("-inf")
         load_handlers()
 
     # -- lifecycle ---------------------------------------------------------------------
@@ -70,8 +72,12 @@ class Worker:
     # -- one job -----------------------------------------------------------------------
     def run_once(self) -> bool:
         """Claim and run at most one job; True when a job was claimed."""
-        with self.db.transaction() as s:
-            jobs.bury_expired(s)
+        now = time.monotonic()
+        if now - self._last_bury >= self.settings.job_lease_s / 2:
+            # Burying dead leases is housekeeping; once per half lease is plenty.
+            self._last_bury = now
+            with self.db.transaction() as s:
+                jobs.bury_expired(s)
         with self.db.transaction() as s:
             job_id = jobs.claim(s, self.worker_id, self.settings.job_lease_s)
         if job_id is None:
