@@ -285,7 +285,7 @@ class TestImagesAndKeyboard:
         assert page.get_by_test_id("image-count").inner_text() == "Camera image 1 of 2"
         page.wait_for_function("() => { const i = document.querySelector('[data-testid=image]'); return i && i.complete && i.naturalWidth === 320; }")
         meta = page.get_by_test_id("image-meta").inner_text()
-        assert re.search(r"t = [\d.]+ s · 60\.\d{6}, 24\.\d{6}", meta)
+        assert re.search(r"[\d.]+ s into the run .*UTC\) · 60\.\d{6}, 24\.\d{6}", meta)
         page.get_by_role("button", name="Next camera image").click()
         assert page.get_by_test_id("image-count").inner_text() == "Camera image 2 of 2"
         shot(page, "images-panel", docs=True)

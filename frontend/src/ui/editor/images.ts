@@ -1,7 +1,8 @@
 /** The images panel: a keyframe's images (several cameras: step through them) with time and position. */
-import { api } from "../../api/endpoints";
+import { type ImagePublic, api } from "../../api/endpoints";
 import type { Keyframe, LonLat } from "../../state/types";
 import { h } from "../dom";
+import { formatRunTime } from "./panels";
 
 export class ImagesPanel {
   readonly el: HTMLElement;
@@ -13,6 +14,11 @@ export class ImagesPanel {
   constructor() {
     this.el = h("section", { class: "images-panel", "aria-label": "Images", "data-testid": "images-panel", hidden: true });
   }
+
+  /** Start time of the run, to show image times as seconds into it. */
+  t0_s = 0;
+  /** Per-image metadata (file name, EXIF position/time) when the server gave it. */
+  meta = new Map<string, ImagePublic>();
 
   open(kf: Keyframe, pos: LonLat): void {
     if (this.kf?.index !== kf.index) this.at = 0;
@@ -42,12 +48,14 @@ export class ImagesPanel {
     const head = h("div", { class: "row spread" },
       h("h2", {}, `Images of keyframe #${kf.index}`),
       h("button", { type: "button", "aria-label": "Close images", onclick: () => this.close() }, "×"));
-    const meta = h("p", { class: "muted", "data-testid": "image-meta" }, `t = ${kf.t_s.toFixed(2)} s · ${this.pos[1].toFixed(6)}, ${this.pos[0].toFixed(6)}`);
+    const meta = h("p", { class: "muted", "data-testid": "image-meta" }, `${formatRunTime(kf.t_s, this.t0_s)} · ${this.pos[1].toFixed(6)}, ${this.pos[0].toFixed(6)}`);
     if (n === 0) {
       this.el.replaceChildren(head, meta, h("p", {}, "No images for this keyframe."));
       return;
     }
     const id = kf.images[this.at];
+    const m = this.meta.get(id);
+    const exif = m && m.exif_lat !== null && m.exif_lon !== null ? ` · EXIF ${m.exif_lat.toFixed(6)}, ${m.exif_lon.toFixed(6)}${m.exif_time ? ` at ${m.exif_time}` : ""}` : "";
     const img = h("img", { src: api.imageUrl(id), alt: `Camera image ${this.at + 1} of ${n} at keyframe ${kf.index}`, "data-testid": "image", loading: "eager" });
     img.addEventListener("error", () => img.replaceWith(h("p", { class: "error" }, `Image ${id} could not be loaded.`)));
     this.el.replaceChildren(
@@ -56,8 +64,10 @@ export class ImagesPanel {
       h("div", { class: "row" },
         h("button", { type: "button", onclick: () => this.step(-1), disabled: n < 2, "aria-label": "Previous camera image" }, "‹"),
         h("span", { "data-testid": "image-count" }, `Camera image ${this.at + 1} of ${n}`),
+        m ? h("span", { class: "muted" }, m.filename) : null,
         h("button", { type: "button", onclick: () => this.step(+1), disabled: n < 2, "aria-label": "Next camera image" }, "›")),
       meta,
+      exif ? h("p", { class: "muted" }, exif.slice(3)) : "",
     );
   }
 }

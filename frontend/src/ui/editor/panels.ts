@@ -64,7 +64,7 @@ export function selectionInfo(s: EditorState): HTMLElement {
   return h("dl", { class: "kv", "data-testid": "selection-info" },
     h("dt", {}, "Keyframe"), h("dd", {}, `#${k.index}`),
     h("dt", {}, "Status"), h("dd", {}, STATUS_LABELS[st]),
-    h("dt", {}, "Time"), h("dd", {}, `${k.t_s.toFixed(2)} s`),
+    h("dt", {}, "Time"), h("dd", {}, formatRunTime(k.t_s, s.doc.keyframes[0]?.t_s ?? 0)),
     h("dt", {}, "Position"), h("dd", {}, `${p[1].toFixed(6)}, ${p[0].toFixed(6)}`),
     h("dt", {}, "Heading"), h("dd", {}, `${k.heading_deg.toFixed(0)}°`),
     h("dt", {}, "Images"), h("dd", {}, String(k.images.length)),
@@ -83,4 +83,12 @@ export function driftInfo(s: EditorState): HTMLElement {
     d.n_edits ? ` from ${d.n_edits} edit${d.n_edits === 1 ? "" : "s"}` : "",
     ".",
   );
+}
+
+/** A keyframe time as seconds into the run, plus the clock time when `t_s` is a Unix time. */
+export function formatRunTime(t_s: number, t0_s: number): string {
+  const rel = `${(t_s - t0_s).toFixed(2)} s into the run`;
+  // Times after 2001 are taken as Unix seconds (recorders log either those or seconds from start).
+  if (t_s > 1e9) return `${rel} (${new Date(t_s * 1000).toISOString().replace("T", " ").slice(0, 22)} UTC)`;
+  return rel;
 }

@@ -8,6 +8,7 @@ import workerUrl from "maplibre-gl/dist/maplibre-gl-worker.mjs?url";
 import type { Map as MlMap, Popup } from "maplibre-gl";
 import { dismissRefusal, select, selectNextAdjustable, selectStep, toggleGhost } from "../../actions/editor";
 import { actionAcceptAsIs, actionMarkDeleted, actionReset, actionRestore, actionUnmove } from "../../actions/edits";
+import { api } from "../../api/endpoints";
 import { MapAdapter } from "../../map/adapter";
 import { bounds } from "../../map/features";
 import { ModeManager } from "../../modes/manager";
@@ -107,6 +108,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string)
       notices.replaceChildren(h("p", {}, "Select a keyframe first to see its images."));
       return;
     }
+    images.t0_s = s.doc.keyframes[0]?.t_s ?? 0;
     images.open(s.doc.keyframes[i], currentEdits(s).moves.get(i) ?? s.doc.keyframes[i].lonlat);
   }
   function toggleDeleteSelected() {
@@ -279,7 +281,18 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string)
   window.addEventListener("keydown", onKey, true);
   cleanups.push(() => window.removeEventListener("keydown", onKey, true));
 
-  ctl.load().catch(() => undefined);
+  ctl.load().then(
+    () => {
+      const s = store.get();
+      if (s.doc && s.doc.keyframes.some((k) => k.images.length)) {
+        api.runImages(runId).then(
+          (r) => (images.meta = new Map(r.items.map((im) => [String(im.id), im]))),
+          () => undefined, // names and EXIF are extras; the images themselves still load
+        );
+      }
+    },
+    () => undefined,
+  );
   render(store.get(), null);
   return () => cleanups.reverse().forEach((f) => f());
 }
