@@ -106,7 +106,7 @@ def heading_errors_from_path(path_xy_m: np.ndarray, steps_xy_m: np.ndarray, sig:
 
     ``path_xy_m`` (T+1, 2) vertex positions of the most likely path (y_0..y_T). Where the
     window's dead-reckoning span is under ``min_span_m`` the previous estimate is kept.
-    Causal: step t uses only y_0..y_{t-1}... (the online tracker has exactly these).
+    Causal: step t uses only y_a..y_t, the positions before it (as the online tracker has).
     """
     steps = np.asarray(steps_xy_m, dtype=float)
     t_n = steps.shape[0]

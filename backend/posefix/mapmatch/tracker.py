@@ -1,8 +1,10 @@
 """Tracking: steps (+ WiFi) -> matched positions with uncertainty, online or for a whole walk.
 
 :class:`Tracker` is the online engine (one call per step, as a phone or a REST session
-would feed it). :func:`track_walk` runs it over a parsed walk and back-tracks the most
-likely path at the end (offline Viterbi: every step's position uses the whole walk).
+would feed it). :func:`track_walk` runs it over a parsed walk, back-tracks the most
+likely path at the end (offline Viterbi), and by default reports each step's smoothed
+posterior mean (forward-backward over the same scores): the minimum mean-squared-error
+estimate, which on the shared walks beats the Viterbi vertices (1.6 vs 1.8 m mean).
 
 f2 is computed online: before step t, the heading error over the last w steps of the
 current most likely path (:func:`posefix.mapmatch.features.heading_errors_from_path`)
@@ -20,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from posefix.mapmatch.features import FeatureSigmas, f_gaussian_position, f_step
-from posefix.mapmatch.viterbi import GaussianSummary, ViterbiFilter, gaussian_summary
+from posefix.mapmatch.viterbi import GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
 
-__all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "start_log_prior"]
+__all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "smooth", "start_log_prior"]
 
 
 def start_log_prior(p_xy_m: np.ndarray, start_xy_m: tuple[float, float] | None,
@@ -50,7 +52,9 @@ class TrackPoint:
 class TrackResult:
     """A tracked walk: ``t_ms`` (T+1,), ``p_xy_m`` (T+1, 2) of the offline most likely path,
     ``sigma_major_m``/``sigma_minor_m``/``angle_deg`` (T+1,) of each step's column, and
-    ``dr_xy_m`` (T+1, 2) the plain dead-reckoning track from the same start."""
+    ``dr_xy_m`` (T+1, 2) the plain dead-reckoning track from the same start.
+    ``time_per_step_s``: CPU time of the online step; ``offline_time_per_step_s`` with the
+    offline back-track and smoothing included."""
 
     t_ms: np.ndarray
     p_xy_m: np.ndarray
@@ -61,6 +65,7 @@ class TrackResult:
     online_xy_m: np.ndarray
     dr_xy_m: np.ndarray
     time_per_step_s: float
+    offline_time_per_step_s: float
 
 
 class Tracker:
@@ -88,6 +93,11 @@ class Tracker:
         self._cum = np.zeros(2)  # dead-reckoning sum (f1)
         self._cum2 = np.zeros(2)  # heading-corrected sum (f2)
         self._steps: list[np.ndarray] = []
+        self.log_prior = self.filter.delta.copy()
+        # The weighted scores the filter saw, kept for offline smoothing (K floats per step;
+        # a (V,) vector only at steps with a WiFi or peak observation).
+        self.trans_rows: list[np.ndarray] = []
+        self.state_rows: list[np.ndarray | None] = []
         self.t_ms: list[int] = [int(t0_ms)]
         self._cum_hist = [np.zeros(2)]
 
@@ -139,7 +149,10 @@ class Tracker:
 
     def step(self, step_xy_m: np.ndarray, t_ms: int, wifi=None, peak=None) -> TrackPoint:
         trans, _, _ = self.transition_scores(step_xy_m)
-        self.filter.step(trans, self.state_scores(wifi, peak))
+        state = self.state_scores(wifi, peak)
+        self.filter.step(trans, state)
+        self.trans_rows.append(trans)
+        self.state_rows.append(state)
         self._steps.append(np.asarray(step_xy_m, dtype=float))
         self._cum_hist.append(self._cum_hist[-1] + self._steps[-1])
         self.t_ms.append(int(t_ms))
@@ -155,17 +168,37 @@ class Tracker:
         return self.filter.best_path()
 
 
+def smooth(tracker: Tracker) -> tuple[np.ndarray, list[GaussianSummary]]:
+    """Offline smoothing of everything a tracker has seen: forward-backward marginals
+    p(y_t | all steps) over the same scores, returned as posterior means (T+1, 2) — the
+    minimum mean-squared-error positions — and their Gaussian summaries."""
+    g = tracker.graph
+    fb = forward_backward(g, tracker.log_prior, np.asarray(tracker.trans_rows).reshape(-1, g.offsets.shape[0]),
+                          tracker.state_rows, beam=tracker.model.beam)
+    floor = g.cell_m / np.sqrt(12.0)
+    sums = []
+    for row in fb.gamma:
+        with np.errstate(divide="ignore"):
+            sums.append(gaussian_summary(tracker.p_xy_m, np.log(row), min_sigma_m=floor))
+    return np.array([s.mean_xy_m for s in sums]), sums
+
+
 def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, fingerprints=None,
-               heading: str = "rotation_vector") -> TrackResult:
+               heading: str = "rotation_vector", estimate: str = "mean") -> TrackResult:
     """Track a parsed :class:`posefix.mapmatch.sensors.Walk` (its waypoints are not read).
 
     ``fingerprints``: an optional :class:`posefix.mapmatch.fingerprints.FingerprintMap`
     giving f3 (and f4) observations, each attached to the step nearest in time.
+    ``estimate``: ``"mean"`` (default) reports the smoothed posterior mean and its
+    ellipse (:func:`smooth`); ``"viterbi"`` the most likely path's vertices with the
+    online columns' ellipses. ``vertex`` is the Viterbi path in both cases.
     """
     import time
 
     from posefix.mapmatch.sensors import steps_from_walk
 
+    if estimate not in ("mean", "viterbi"):
+        raise ValueError(f"estimate must be 'mean' or 'viterbi', got {estimate!r}")
     steps = steps_from_walk(walk, heading=heading)
     vec = steps.vectors_m(model.step_model)
     t0 = int(walk.acc[0, 0])
@@ -185,17 +218,23 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
         pts.append(tp.summary)
         online.append(tr.p_xy_m[tp.vertex])
     path = tr.best_path()
-    elapsed = time.process_time() - tic
+    online_s = time.process_time() - tic
+    p_out = tr.p_xy_m[path]
+    if estimate == "mean" and len(steps):
+        p_out, pts = smooth(tr)
+    total_s = time.process_time() - tic
     start = np.zeros(2) if start_xy_m is None else np.asarray(start_xy_m, dtype=float)
     dr = start + np.vstack([np.zeros((1, 2)), np.cumsum(vec, axis=0)])
+    n = max(len(steps), 1)
     return TrackResult(
         t_ms=np.asarray(tr.t_ms, dtype=np.int64),
-        p_xy_m=tr.p_xy_m[path],
+        p_xy_m=p_out,
         vertex=path,
         sigma_major_m=np.array([p.sigma_major_m for p in pts]),
         sigma_minor_m=np.array([p.sigma_minor_m for p in pts]),
         angle_deg=np.array([p.angle_deg for p in pts]),
         online_xy_m=np.asarray(online),
         dr_xy_m=dr,
-        time_per_step_s=elapsed / max(len(steps), 1),
+        time_per_step_s=online_s / n,
+        offline_time_per_step_s=total_s / n,
     )
