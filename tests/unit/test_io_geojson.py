@@ -91,3 +91,20 @@ def test_invalid_json_and_wrong_type(tmp_path):
     p.write_text('{"type": "FeatureCollection", "features": []}')
     with pytest.raises(RunFormatError, match="empty"):
         read_run(p)
+
+
+@pytest.mark.parametrize("coords,field", [
+    ([[24.0, 60.0, 0.0], [24.001, 91.0, 0.0]], "coordinates (lat)"),
+    ([[24.0, 60.0, 0.0], [24.001, "60.1", 0.0]], "features[0].geometry.coordinates[1][1] (lat)"),
+    ([[24.0, 60.0, 0.0], [24.001, True, 0.0]], "features[0].geometry.coordinates[1][1] (lat)"),
+])
+def test_single_linestring_errors_keep_their_line(tmp_path, coords, field):
+    text = json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "geometry": {"type": "LineString", "coordinates": coords},
+         "properties": {"times": [0, 1], "q_body_to_enu_wxyz": [[1, 0, 0, 0]] * 2}}]}, indent=1)
+    p = tmp_path / "one.geojson"
+    p.write_text(text)
+    with pytest.raises(RunFormatError) as info:
+        read_run(p)
+    assert info.value.field == field
+    assert info.value.line == 4  # the line where the feature's object opens

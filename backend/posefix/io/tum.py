@@ -9,6 +9,7 @@ Lines starting with ``#`` and blank lines are skipped.
 
 from __future__ import annotations
 
+import io as _io
 import os
 from pathlib import Path
 
@@ -27,11 +28,28 @@ TUM_FIELDS = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
 
 
 def _parse_table(path: Path, fields: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Whitespace table -> (values (m, k) float, 1-based line numbers (m,))."""
+    """Whitespace table -> (values (m, k) float, 1-based line numbers (m,)).
+
+    numpy's C reader first; if it refuses anything (or finds NaN), a line-by-line pass
+    names the line and field.
+    """
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise RunFormatError(path, None, None, f"cannot read file: {exc}") from None
+    if "," not in text:
+        import warnings
+
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # "no data": reported below
+                vals = np.loadtxt(_io.StringIO(text), dtype=float, comments="#", ndmin=2)
+        except ValueError:
+            vals = None
+        if vals is not None and vals.shape[0] > 0 and vals.shape[1] == len(fields) and not np.isnan(vals).any():
+            lines = _data_lines(text)
+            if len(lines) == vals.shape[0]:
+                return vals, lines
     rows: list[list[float]] = []
     lines: list[int] = []
     for lineno, raw in enumerate(text.splitlines(), start=1):
@@ -55,6 +73,12 @@ def _parse_table(path: Path, fields: tuple[str, ...]) -> tuple[np.ndarray, np.nd
     if not rows:
         raise RunFormatError(path, None, None, "the run is empty (no data lines)")
     return np.asarray(rows, dtype=float), np.asarray(lines)
+
+
+def _data_lines(text: str) -> np.ndarray:
+    """1-based numbers of the lines that hold data (not blank, not a comment)."""
+    out = [i for i, raw in enumerate(text.splitlines(), start=1) if raw.strip() and not raw.lstrip().startswith("#")]
+    return np.asarray(out, dtype=int)
 
 
 def read_tum(path: str | os.PathLike, origin: OriginLike | None) -> PoseRun:
@@ -89,8 +113,11 @@ def write_tum(run: PoseRun, path: str | os.PathLike, origin: OriginLike | None =
     o = as_origin(origin) if origin is not None else as_origin((run.lat_deg[0], run.lon_deg[0], run.alt_m[0]))
     p = geodetic_to_enu(run.lat_deg, run.lon_deg, run.alt_m, o)
     q = quat_multiply(quat_local_enu_to_origin_enu(run.lat_deg, run.lon_deg, o), run.q_body_to_enu_wxyz)
-    table = np.column_stack([run.t_s, p, q[:, 1:4], q[:, 0]])
-    with atomic_write(path, "w") as fh:
-        fh.write(f"# posefix TUM export; frame: ENU at lat={o.lat_deg!r} lon={o.lon_deg!r} alt={o.alt_m!r}\n")
-        fh.write("# timestamp tx ty tz qx qy qz qw\n")
-        np.savetxt(fh, table, fmt="%.17g")
+    from posefix.io._text import render_rows
+
+    body = render_rows([run.t_s, " ", p[:, 0], " ", p[:, 1], " ", p[:, 2], " ", q[:, 1], " ", q[:, 2], " ",
+                        q[:, 3], " ", q[:, 0], "\n"])
+    with atomic_write(path, "wb") as fh:
+        fh.write(f"# posefix TUM export; frame: ENU at lat={o.lat_deg!r} lon={o.lon_deg!r} alt={o.alt_m!r}\n".encode())
+        fh.write(b"# timestamp tx ty tz qx qy qz qw\n")
+        fh.write(body)
