@@ -24,6 +24,13 @@ Timings are wall-clock on a shared machine: each is the best of a few repetition
 
 from __future__ import annotations
 
+import os
+
+# The engine's linear algebra is small blocks and a banded Cholesky: BLAS threads only
+# fight over this 2-core machine (set before numpy loads; GTSAM uses its own Eigen code).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 import argparse
 import shutil
 import time

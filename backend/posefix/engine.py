@@ -174,7 +174,10 @@ class Problem:
         step_m = np.linalg.norm(np.diff(p, axis=0), axis=1)
         dt_s = np.diff(self.run.t_s[rows])
         rc = cfg.relative
-        sigma_rt = np.sqrt(rc.sigma_t_floor_m**2 + rc.sigma_t_per_sqrt_s_m**2 * dt_s + (rc.sigma_t_per_m * step_m) ** 2)
+        sigma_rt = np.sqrt(
+            rc.sigma_t_floor_m**2 + rc.sigma_t_per_sqrt_s_m**2 * dt_s + (rc.sigma_t_per_m * step_m) ** 2
+            + implausible_motion_m(p, self.anchored_quat(rows), dt_s, rc.max_lateral_speed_mps) ** 2
+        )
         sigma_rr = np.sqrt(rc.sigma_r_floor_rad**2 + rc.sigma_r_per_sqrt_s_rad**2 * dt_s)
         empty3 = np.zeros((0, 3))
         terms = T.build_terms(
@@ -382,6 +385,23 @@ class Problem:
         object.__setattr__(corr, "_x", sol.x)
         object.__setattr__(corr, "_active", sol.active)
         return corr
+
+
+def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:
+    """(k-1,) sideways and vertical motion between keyframes beyond what a vehicle can do, metres.
+
+    A road vehicle does not slide sideways or jump vertically faster than ``max_speed_mps``
+    (side slip and bumps stay well below 0.5 m/s).  A reported step with more body-frame
+    lateral/vertical motion than that carries a jump of the pose's error (an INS following
+    an urban-canyon GNSS offset); its relative-translation sigma grows by the excess so the
+    correction can undo the jump there rather than smear it over the whole interval.
+    0 disables the check (pedestrians, handheld devices).
+    """
+    if max_speed_mps <= 0 or len(p_enu_m) < 2:
+        return np.zeros(max(len(p_enu_m) - 1, 0))
+    step_body = rot.rotate(rot.quat_conjugate(q_wxyz[:-1]), np.diff(p_enu_m, axis=0))
+    sideways_m = np.hypot(step_body[:, 1], step_body[:, 2])
+    return np.maximum(sideways_m - max_speed_mps * dt_s, 0.0)
 
 
 def prepare(run: PoseRun, cfg: CorrectionConfig | None = None) -> Problem:

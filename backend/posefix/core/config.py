@@ -55,6 +55,7 @@ class RelativeConfig:
     sigma_t_floor_m: float = 0.02
     sigma_t_per_sqrt_s_m: float = 0.2
     sigma_t_per_m: float = 0.002
+    max_lateral_speed_mps: float = 0.5
     sigma_r_floor_rad: float = 0.00001
     sigma_r_per_sqrt_s_rad: float = 0.00003
 

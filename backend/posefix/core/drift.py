@@ -27,8 +27,9 @@ neighbouring keyframes (the reported pose keeps its local shape, so g - p~ varie
    sigma inflated to ``sqrt(sigma_w^2 + var_b,i)``: where edits show drift the term is
    down-weighted (between edits, where the bias is uncertain) and no longer biased, so
    hundreds of weak, correlated fixes cannot pull the run back onto a biased track.  With
-   no drift (offsets ~ noise) the term is left as it was; far from any edit the model
-   returns to the unbiased prior, so the pull of one edit fades with distance.
+   no drift detected (offsets within 3 sigma of the noise of edits and fixes) the term is
+   left exactly as it was; far from any edit the model returns to the unbiased prior, so
+   the pull of one edit fades with distance.
 
 Vertical: only 3-D edits observe the vertical bias; without them the vertical is left alone.
 """
@@ -284,6 +285,11 @@ def estimate_drift(
     typical_dt = float(np.median(np.diff(t_e))) if len(t_e) > 1 else float(kf_t_s[-1] - kf_t_s[0])
     median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise_h[0] / len(t_e))
     detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise_h[0])
+    if not detected:
+        # the offsets are what edit and GNSS noise alone would give: the location term is
+        # unbiased as far as the edits can tell, and is left exactly as configured
+        bias = np.zeros((k, 3))
+        var_h = np.zeros(k)
     weight = sigma_w_h_m**2 / (sigma_w_h_m**2 + var_h)
     return DriftEstimate(
         offset_enu_m=offset,

@@ -142,7 +142,7 @@ def solve_banded(
         if rho > 0:
             x, accepted = x_new, accepted + 1
             small_step = float(np.max(np.abs(dx))) <= 1e-10 * (1.0 + float(np.max(np.abs(x))))
-            ev = T.evaluate(terms, x, with_jac=True)
+            ev = T.add_jacobians(terms, ev_new)
             F_old, F = F, F_new
             lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0

@@ -50,7 +50,7 @@ class Terms:
     loc_idx (m,), loc_g_m (m,3), loc_w (m,3): located keyframes, measured positions, 1/sigma per axis.
     user_idx (u,), user_c_m (u,3), user_w (u,3): edited keyframes, targets, 1/sigma (0 = free axis).
     rel_delta_m (k-1,3), rel_w_t (k-1,): body-frame steps D_ij and 1/s_RT.
-    rel_dR (k-1,3,3), rel_w_r (k-1,): reported relative rotations and 1/s_RR.
+    rel_dR (k-1,3,3), rel_w_r (k-1,): reported relative rotations and 1/s_RR; rel_dq (k-1,4) the same as quaternions.
     grav_zb (k,3), grav_w (k,): reported body-frame up vectors and 1/s_G.
     """
 
@@ -66,6 +66,7 @@ class Terms:
     rel_w_t: np.ndarray
     rel_dR: np.ndarray
     rel_w_r: np.ndarray
+    rel_dq: np.ndarray
     grav_zb: np.ndarray
     grav_w: np.ndarray
     loss: str = "cauchy"
@@ -95,7 +96,8 @@ def build_terms(
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     p_rep_m = np.asarray(p_rep_m, dtype=float)
-    R_rep = rot.quat_to_matrix(rot.normalize_quat(q_rep_wxyz))
+    q_rep = rot.normalize_quat(q_rep_wxyz)
+    R_rep = rot.quat_to_matrix(q_rep)
     k = len(p_rep_m)
     delta = np.einsum("kji,kj->ki", R_rep[:-1], p_rep_m[1:] - p_rep_m[:-1])
     dR = np.einsum("kji,kjl->kil", R_rep[:-1], R_rep[1:])
@@ -112,6 +114,7 @@ def build_terms(
         rel_w_t=1.0 / np.broadcast_to(np.asarray(sigma_rt_m, dtype=float), (k - 1,)),
         rel_dR=dR,
         rel_w_r=1.0 / np.broadcast_to(np.asarray(sigma_rr_rad, dtype=float), (k - 1,)),
+        rel_dq=rot.quat_multiply(rot.quat_conjugate(q_rep[:-1]), q_rep[1:]),
         grav_zb=R_rep[:, 2, :].copy(),
         grav_w=1.0 / np.broadcast_to(np.asarray(sigma_g, dtype=float), (k,)),
         loss=loss,
@@ -179,6 +182,7 @@ class Evaluation:
     """Residuals (and Jacobian blocks) of every term at one state.
 
     Blocks are (m, 3, 3) matrices: d residual / d p or d theta of the keyframe named.
+    ``cache`` keeps the intermediate quantities the Jacobians reuse.
     """
 
     loc_r: np.ndarray
@@ -187,11 +191,12 @@ class Evaluation:
     rr_r: np.ndarray
     grav_r: np.ndarray
     jac: dict[str, np.ndarray] = field(default_factory=dict)
+    cache: dict[str, np.ndarray] = field(default_factory=dict)
 
     def costs(self) -> dict[str, float]:
         """Cost of each term, 1/2 sum of squared (robustified) residuals."""
         return {
-            name: 0.5 * float(np.sum(r * r))
+            name: 0.5 * float(np.einsum("ij,ij->", r, r))
             for name, r in zip(TERM_NAMES, (self.loc_r, self.user_r, self.rt_r, self.rr_r, self.grav_r))
         }
 
@@ -215,20 +220,33 @@ def initial_state(terms: Terms) -> np.ndarray:
     return x.ravel()
 
 
-def residual_location(terms: Terms, p_m: np.ndarray, with_jac: bool):
-    """Robustified location residual r = sqrt(rho(s)/s) e, e = W (p - g); returns r, dr/dp."""
+def _log_unit_quat(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors of unit quaternions (no renormalisation; the short way round)."""
+    w = q[:, 0]
+    v = q[:, 1:] * np.where(w < 0, -1.0, 1.0)[:, None]
+    w = np.abs(w)
+    s = np.sqrt(np.einsum("ij,ij->i", v, v))
+    small = s < 1e-8
+    k = np.where(small, 2.0 / np.maximum(w, 1e-300), 2.0 * np.arctan2(s, w) / np.where(small, 1.0, s))
+    return k[:, None] * v
+
+
+def location_residual(terms: Terms, p_m: np.ndarray):
+    """Robustified location residual r = sqrt(rho(s)/s) e with e = W (p - g); returns r, e, s."""
     e = terms.loc_w * (p_m[terms.loc_idx] - terms.loc_g_m)
     s = np.einsum("mi,mi->m", e, e)
+    g, _ = loss_ratio(s / terms.loss_scale**2, terms.loss)
+    return np.sqrt(g)[:, None] * e, e, s
+
+
+def location_jacobian(terms: Terms, e: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """dr/dp of the robustified location residual: (f I + 2 f'(s) e e^T) W, f = sqrt(rho(s)/s)."""
     c2 = terms.loss_scale**2
     g, dg = loss_ratio(s / c2, terms.loss)
     f = np.sqrt(g)
-    r = f[:, None] * e
-    if not with_jac:
-        return r, None
-    # f'(s) = g'(z) / (2 f C^2); dr/de = f I + 2 f'(s) e e^T; dr/dp = dr/de diag(W)
-    df = dg / (2.0 * f * c2)
-    dr_de = f[:, None, None] * np.eye(3) + (2.0 * df)[:, None, None] * np.einsum("mi,mj->mij", e, e)
-    return r, dr_de * terms.loc_w[:, None, :]
+    df = dg / (2.0 * f * c2)  # f'(s) = g'(z) / (2 f C^2)
+    dr_de = f[:, None, None] * np.eye(3) + (2.0 * df)[:, None, None] * (e[:, :, None] * e[:, None, :])
+    return dr_de * terms.loc_w[:, None, :]
 
 
 def location_hessian(terms: Terms, p_m: np.ndarray) -> np.ndarray:
@@ -245,82 +263,72 @@ def location_hessian(terms: Terms, p_m: np.ndarray) -> np.ndarray:
     d1, d2 = loss_derivatives(s / c2, terms.loss)
     along = np.maximum(d1 + 2.0 * d2 * s / c2, 0.1 * d1)
     u = e / np.sqrt(np.maximum(s, 1e-300))[:, None]
-    uu = np.einsum("mi,mj->mij", u, u)
+    uu = u[:, :, None] * u[:, None, :]
     M = d1[:, None, None] * (np.eye(3) - uu) + along[:, None, None] * uu
     return M * terms.loc_w[:, :, None] * terms.loc_w[:, None, :]
 
 
-def residual_user(terms: Terms, p_m: np.ndarray, with_jac: bool):
-    """r = W (p_k - c_k); dr/dp = diag(W)."""
-    r = terms.user_w * (p_m[terms.user_idx] - terms.user_c_m)
-    if not with_jac:
-        return r, None
-    J = np.zeros((len(r), 3, 3))
-    J[:, [0, 1, 2], [0, 1, 2]] = terms.user_w
-    return r, J
-
-
-def residual_relative_translation(terms: Terms, p_m: np.ndarray, R: np.ndarray, Jr: np.ndarray | None):
-    """r = w (R_i^T (p_j - p_i) - D_ij); blocks d/dp_i, d/dp_j, d/dtheta_i."""
-    w = terms.rel_w_t[:, None]
-    b = np.einsum("kji,kj->ki", R[:-1], p_m[1:] - p_m[:-1])
-    r = w * (b - terms.rel_delta_m)
-    if Jr is None:
-        return r, None
-    RiT = np.swapaxes(R[:-1], 1, 2) * w[:, :, None]
-    J_theta = rot.skew(b) @ Jr[:-1] * w[:, :, None]
-    return r, (-RiT, RiT, J_theta)
-
-
-def residual_relative_rotation(terms: Terms, theta: np.ndarray, q_corr: np.ndarray, Jr: np.ndarray | None):
-    """r = w Log(dR~^T Exp(-theta_i) dR~ Exp(theta_j)); blocks d/dtheta_i, d/dtheta_j."""
-    w = terms.rel_w_r[:, None]
-    C = rot.quat_to_matrix(q_corr)  # Exp(theta)
-    dRt = np.swapaxes(terms.rel_dR, 1, 2)
-    E = dRt @ np.swapaxes(C[:-1], 1, 2) @ terms.rel_dR @ C[1:]
-    phi = rot.log_matrix(E)
-    r = w * phi
-    if Jr is None:
-        return r, None
-    J_i = -(rot.left_jacobian_inverse(phi) @ dRt @ Jr[:-1]) * w[:, :, None]
-    J_j = (rot.right_jacobian_inverse(phi) @ Jr[1:]) * w[:, :, None]
-    return r, (J_i, J_j)
-
-
-def residual_gravity(terms: Terms, R: np.ndarray, Jr: np.ndarray | None):
-    """r = w (R_i^T z - R~_i^T z); block d/dtheta_i = w [R_i^T z]x Jr(theta_i)."""
-    w = terms.grav_w[:, None]
-    zb = R[:, 2, :]
-    r = w * (zb - terms.grav_zb)
-    if Jr is None:
-        return r, None
-    return r, rot.skew(zb) @ Jr * w[:, :, None]
-
-
 def evaluate(terms: Terms, x: np.ndarray, with_jac: bool = True) -> Evaluation:
-    """All residuals at state x (6k,), with Jacobian blocks when ``with_jac``."""
+    """All residuals at state x (6k,), with Jacobian blocks when ``with_jac``.
+
+    Residuals, in the order of ``TERM_NAMES`` (see the module docstring for equations):
+    location ``sqrt(rho(s)/s) W (p_i - g_i)``; user ``W (p_k - c_k)``; relative translation
+    ``w (R_i^T (p_j - p_i) - D_ij)``; relative rotation ``w Log(dq~^-1 q_i^-1 q_j)`` computed
+    with quaternions (``q_i = q~_i Exp(theta_i)``); gravity ``w (R_i^T z - R~_i^T z)``.
+    """
     p_m, theta = split_state(x)
-    q_corr = rot.exp_quat(theta)
+    q_corr = rot.exp_quat(theta)  # Exp(theta_i)
     R = terms.R_rep @ rot.quat_to_matrix(q_corr)
-    Jr = rot.right_jacobian(theta) if with_jac else None
-    loc_r, loc_J = residual_location(terms, p_m, with_jac)
-    user_r, user_J = residual_user(terms, p_m, with_jac)
-    rt_r, rt_J = residual_relative_translation(terms, p_m, R, Jr)
-    rr_r, rr_J = residual_relative_rotation(terms, theta, q_corr, Jr)
-    g_r, g_J = residual_gravity(terms, R, Jr)
-    ev = Evaluation(loc_r, user_r, rt_r, rr_r, g_r)
+    loc_r, e, s = location_residual(terms, p_m)
+    user_r = terms.user_w * (p_m[terms.user_idx] - terms.user_c_m)
+    b = np.einsum("kji,kj->ki", R[:-1], p_m[1:] - p_m[:-1])  # R_i^T (p_j - p_i)
+    rt_r = terms.rel_w_t[:, None] * (b - terms.rel_delta_m)
+    # E = dR~^T Exp(-theta_i) dR~ Exp(theta_j) as a quaternion product
+    dq = terms.rel_dq
+    qE = rot.quat_multiply(
+        rot.quat_multiply(rot.quat_conjugate(dq), rot.quat_conjugate(q_corr[:-1])),
+        rot.quat_multiply(dq, q_corr[1:]),
+    )
+    phi = _log_unit_quat(qE)
+    rr_r = terms.rel_w_r[:, None] * phi
+    zb = R[:, 2, :]
+    grav_r = terms.grav_w[:, None] * (zb - terms.grav_zb)
+    ev = Evaluation(loc_r, user_r, rt_r, rr_r, grav_r,
+                    cache={"p": p_m, "theta": theta, "R": R, "e": e, "s": s, "b": b, "phi": phi, "zb": zb})
     if with_jac:
-        ev.jac = {
-            "loc_H": location_hessian(terms, p_m),
-            "loc_p": loc_J,
-            "user_p": user_J,
-            "rt_pi": rt_J[0],
-            "rt_pj": rt_J[1],
-            "rt_ti": rt_J[2],
-            "rr_ti": rr_J[0],
-            "rr_tj": rr_J[1],
-            "g_t": g_J,
-        }
+        add_jacobians(terms, ev)
+    return ev
+
+
+def add_jacobians(terms: Terms, ev: Evaluation) -> Evaluation:
+    """Fill ``ev.jac`` with every Jacobian block at the state ``ev`` was evaluated at.
+
+    * location: ``dr/dp`` (see ``location_jacobian``) and the solver's loss Hessian
+    * user: ``diag(W)``
+    * relative translation: ``-w R_i^T``, ``w R_i^T``, ``w [R_i^T (p_j - p_i)]x Jr(theta_i)``
+    * relative rotation: ``-w Jl^-1(phi) dR~^T Jr(theta_i)``, ``w Jr^-1(phi) Jr(theta_j)``
+    * gravity: ``w [R_i^T z]x Jr(theta_i)``
+    """
+    c = ev.cache
+    R, theta = c["R"], c["theta"]
+    Jr = rot.right_jacobian(theta)
+    wt = terms.rel_w_t[:, None, None]
+    wr = terms.rel_w_r[:, None, None]
+    RiT = np.swapaxes(R[:-1], 1, 2) * wt
+    user_J = np.zeros((len(ev.user_r), 3, 3))
+    user_J[:, [0, 1, 2], [0, 1, 2]] = terms.user_w
+    dRt = np.swapaxes(terms.rel_dR, 1, 2)
+    ev.jac = {
+        "loc_H": location_hessian(terms, c["p"]),
+        "loc_p": location_jacobian(terms, c["e"], c["s"]),
+        "user_p": user_J,
+        "rt_pi": -RiT,
+        "rt_pj": RiT,
+        "rt_ti": rot.skew(c["b"]) @ Jr[:-1] * wt,
+        "rr_ti": -(rot.left_jacobian_inverse(c["phi"]) @ dRt @ Jr[:-1]) * wr,
+        "rr_tj": (rot.right_jacobian_inverse(c["phi"]) @ Jr[1:]) * wr,
+        "g_t": rot.skew(c["zb"]) @ Jr * terms.grav_w[:, None, None],
+    }
     return ev
 
 
@@ -387,22 +395,28 @@ def normal_equations(terms: Terms, ev: Evaluation) -> tuple[np.ndarray, np.ndarr
     D[terms.user_idx, :3, :3] += ata(jac["user_p"], jac["user_p"])
     g[terms.user_idx, :3] += np.einsum("mri,mr->mi", jac["user_p"], ev.user_r)
     if k > 1:
-        # one 6 x 12 Jacobian per edge: rows (relative translation, relative rotation),
-        # columns (p_i, theta_i, p_j, theta_j); a single batched product gives D_i, U_i, D_j
-        Je = np.zeros((k - 1, 6, 12))
-        Je[:, :3, 0:3] = jac["rt_pi"]
-        Je[:, :3, 3:6] = jac["rt_ti"]
-        Je[:, :3, 6:9] = jac["rt_pj"]
-        Je[:, 3:, 3:6] = jac["rr_ti"]
-        Je[:, 3:, 9:12] = jac["rr_tj"]
-        JeT = np.swapaxes(Je, 1, 2)
-        He = JeT @ Je
-        ge = (JeT @ np.concatenate([ev.rt_r, ev.rr_r], axis=1)[:, :, None])[:, :, 0]
-        D[:-1] += He[:, :6, :6]
-        D[1:] += He[:, 6:, 6:]
-        U += He[:, :6, 6:]
-        g[:-1] += ge[:, :6]
-        g[1:] += ge[:, 6:]
+        # Edge blocks, exploiting their structure: the relative-translation rows are
+        # [P, T, -P, 0] over (p_i, theta_i, p_j, theta_j) with P = -w R_i^T (so P^T P = w^2 I),
+        # the relative-rotation rows [0, A, 0, B].
+        P, Tt = jac["rt_pi"], jac["rt_ti"]
+        A, B = jac["rr_ti"], jac["rr_tj"]
+        PtT = np.swapaxes(P, 1, 2) @ Tt
+        w2 = (terms.rel_w_t**2)[:, None, None] * np.eye(3)
+        AtA_BtB = np.swapaxes(A, 1, 2) @ A
+        D[:-1, :3, :3] += w2
+        D[:-1, :3, 3:] += PtT
+        D[:-1, 3:, :3] += np.swapaxes(PtT, 1, 2)
+        D[:-1, 3:, 3:] += np.swapaxes(Tt, 1, 2) @ Tt + AtA_BtB
+        D[1:, :3, :3] += w2
+        D[1:, 3:, 3:] += np.swapaxes(B, 1, 2) @ B
+        U[:, :3, :3] -= w2
+        U[:, 3:, :3] -= np.swapaxes(PtT, 1, 2)
+        U[:, 3:, 3:] += np.swapaxes(A, 1, 2) @ B
+        Ptr = np.einsum("mri,mr->mi", P, ev.rt_r)
+        g[:-1, :3] += Ptr
+        g[1:, :3] -= Ptr
+        g[:-1, 3:] += np.einsum("mri,mr->mi", Tt, ev.rt_r) + np.einsum("mri,mr->mi", A, ev.rr_r)
+        g[1:, 3:] += np.einsum("mri,mr->mi", B, ev.rr_r)
     Gt = jac["g_t"]
     D[:, 3:, 3:] += ata(Gt, Gt)
     g[:, 3:] += np.einsum("mri,mr->mi", Gt, ev.grav_r)
