@@ -295,7 +295,8 @@ class TestRegisterTileSource:
         neither = {"name": "t", "kind": "topo"}
         bad_name = {"name": "9lives", "kind": "topo", "path": "tiles/toner.pmtiles"}
         bad_kind = {"name": "t", "kind": "aerial", "path": "tiles/toner.pmtiles"}
-        for body in (both, neither, bad_name, bad_kind):
+        nul = {"name": "t", "kind": "topo", "path": "tiles/toner.pmtiles", "attribution": "a\x00b"}
+        for body in (both, neither, bad_name, bad_kind, nul):
             response = admin.post("/api/v1/tile-sources", json=body)
             assert response.status_code == 422 and response.json()["error"] == "validation_error", body
 
@@ -306,6 +307,7 @@ class TestRegisterTileSource:
             "https://tiles.example/{z}/{x}/{y}": "tile_format_unknown",
             "https://tiles.example/{z}/{x}/{y}.pbf": "tile_format_unsupported",
         }
+        cases["http://[::1/{z}/{x}/{y}.png"] = "invalid_tile_url"
         for url, code in cases.items():
             response = admin.post("/api/v1/tile-sources", json={"name": "up", "kind": "satellite", "url": url})
             assert response.status_code == 422 and response.json()["error"] == code, url
@@ -328,8 +330,9 @@ class TestRegisterTileSource:
         assert admin.delete("/api/v1/tile-sources/street").status_code == 204
         assert admin.get("/api/v1/tile-sources").json() == {"items": [], "total": 0}
         assert admin.get("/api/v1/tiles/toner/0/0/0.png").status_code == 404
-        response = admin.delete("/api/v1/tile-sources/street")
-        assert response.status_code == 404 and response.json()["error"] == "tile_source_not_found"
+        for ref in ("street", "99", "9" * 40, "²"):
+            response = admin.delete(f"/api/v1/tile-sources/{ref}")
+            assert response.status_code == 404 and response.json()["error"] == "tile_source_not_found", ref
 
 
 # ------------------------------------------------------------------ serving

@@ -28,6 +28,14 @@ class TileSourceCreate(BaseModel):
     url: str | None = Field(default=None, min_length=1, max_length=2000)
     tile_size: int = Field(default=256, description="256 or 512 pixels (raster tiles)")
 
+    @field_validator("title", "attribution", "path", "url")
+    @classmethod
+    def _no_control_characters(cls, value: str | None) -> str | None:
+        # PostgreSQL cannot store NUL, and no attribution or path needs a control character.
+        if value is not None and any(ord(ch) < 32 or ord(ch) == 127 for ch in value):
+            raise ValueError("must not contain control characters")
+        return value
+
     @field_validator("format", mode="before")
     @classmethod
     def _format_alias(cls, value: object) -> object:

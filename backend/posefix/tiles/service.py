@@ -104,8 +104,11 @@ def resolve_data_path(data_dir: Path, path: str) -> tuple[Path, str]:
     The relative form is what is stored, so the data directory can move.
     """
     root = Path(data_dir).resolve()
-    candidate = Path(path)
-    absolute = (candidate if candidate.is_absolute() else root / candidate).resolve()
+    try:
+        candidate = Path(path)
+        absolute = (candidate if candidate.is_absolute() else root / candidate).resolve()
+    except (OSError, ValueError) as exc:  # NUL bytes, names too long for the file system
+        raise Unprocessable(f"tile file path {path!r} is not usable: {exc}", code="invalid_tile_file") from None
     try:
         relative = absolute.relative_to(root)
     except ValueError:
@@ -127,7 +130,11 @@ def _cache_dir(settings: Settings, options: TileSettings, source: TileSource) ->
 
 
 def _check_upstream_url(url: str) -> None:
-    parts = urlsplit(url)
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 (parses the port; raises on garbage)
+    except ValueError as exc:
+        raise Unprocessable(f"upstream url {url!r} is not a URL ({exc})", code="invalid_tile_url") from None
     if parts.scheme not in ("http", "https") or not parts.netloc:
         raise Unprocessable(f"upstream url {url!r} must be an absolute http(s) URL", code="invalid_tile_url")
     missing = [key for key in ("{z}", "{x}") if key not in url]
@@ -218,7 +225,11 @@ def list_sources(session: Session) -> list[TileSource]:
 
 def get_source(session: Session, ref: str) -> TileSource:
     """A source by numeric id or by name (names start with a letter, so the two never clash)."""
-    source = repo.get_source(session, int(ref)) if ref.isdigit() else repo.get_source_by_name(session, ref)
+    if ref.isascii() and ref.isdigit():
+        # Ids beyond 64 bits exist nowhere; asking the database would overflow its integer.
+        source = repo.get_source(session, int(ref)) if len(ref) <= 18 else None
+    else:
+        source = repo.get_source_by_name(session, ref)
     if source is None:
         raise NotFound(f"tile source {ref!r} not found", code="tile_source_not_found")
     return source
