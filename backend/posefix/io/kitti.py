@@ -80,14 +80,12 @@ def read_kitti_oxts(path: str | os.PathLike) -> PoseRun:
     q = matrix_to_quat(r)
     extra = {name: vals[:, OXTS_FIELDS.index(name)].copy() for name in KEPT_EXTRA}
     idx = {name: k for k, name in enumerate(OXTS_FIELDS)}
-    names_for_file = files
-
-    # An invariant break names the data file of that packet (line 1) -- or the timestamp line.
-    class _Where:
-        row: int | None = None
+    # An invariant break in a packet's values names that packet's data file; one in the
+    # times names the line of timestamps.txt. ``build_run`` asks for the row's line.
+    failing_row: list[int] = []
 
     def line_of_row(i: int) -> int:
-        _Where.row = i
+        failing_row.append(i)
         return i + 1
 
     try:
@@ -97,8 +95,8 @@ def read_kitti_oxts(path: str | os.PathLike) -> PoseRun:
             field_names={"t_s": "timestamp", "q_body_to_enu_wxyz": "roll,pitch,yaw"},
         )
     except RunFormatError as exc:
-        if exc.field in ("lat", "lon", "alt", "roll,pitch,yaw") and _Where.row is not None:
-            raise RunFormatError(names_for_file[_Where.row], 1, exc.field, exc.message) from None
+        if exc.field in ("lat", "lon", "alt", "roll,pitch,yaw") and failing_row:
+            raise RunFormatError(files[failing_row[-1]], 1, exc.field, exc.message) from None
         raise
 
 
