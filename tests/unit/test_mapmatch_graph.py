@@ -71,3 +71,21 @@ def test_build_graph_refuses_empty_map():
     r = raster_from_polygons(3.0, 3.0, [rect(0, 0, 0.5, 0.5)], res_m=0.1)
     with pytest.raises(ValueError, match="no walkable component"):
         build_graph(r, cell_m=1.0, reach_m=1.0, min_component_m2=1.0)
+
+
+def test_floor_plan_image_with_scale_and_origin(tmp_path):
+    from PIL import Image
+
+    # 40 x 20 px at 0.1 m/px: white room with a black wall down the middle, gap at the top.
+    a = np.full((20, 40, 3), 255, dtype=np.uint8)
+    a[5:, 19:21] = 0  # image rows go down: the wall spans the bottom 1.5 m, the gap is on top
+    Image.fromarray(a).save(tmp_path / "plan.png")
+    from posefix.mapmatch.floorplan import raster_from_image
+
+    r = raster_from_image(tmp_path / "plan.png", m_per_px=0.1, origin_xy_m=(10.0, 5.0))
+    assert r.width_m == pytest.approx(4.0) and r.height_m == pytest.approx(2.0)
+    assert not r.is_walkable(np.array([[12.0, 5.5]]))[0]  # the wall, 0.5 m above the bottom
+    assert r.is_walkable(np.array([[12.0, 6.8]]))[0]  # the gap near the top
+    g = build_graph(r, cell_m=0.5, reach_m=0.5, min_component_m2=0.5)
+    assert vid(g, 4, 0) not in neighbours(g, vid(g, 3, 0))
+    assert g.n_vertices > 0 and g.p_xy_m[:, 0].min() > 10.0
