@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tests.e2e.conftest import ARTIFACTS, PASSWORD
+from tests.e2e.serverkit import ARTIFACTS, PASSWORD
 
 DOCS_IMG = Path(__file__).resolve().parents[2] / "docs" / "img"
 

@@ -1,0 +1,125 @@
+"""Browser editor benchmark: frame time while dragging a keyframe with 10,000 keyframes.
+
+    python -m benchmarks.editor_drag [--keyframes 10000] [--moves 120]
+
+A real `posefix serve` (temporary SQLite database, Helsinki basemap) serves a simulated
+drive with one keyframe per second; Debian's Chromium (headless, software WebGL through
+--disable-gpu, as in the tests) opens it in the editor with the whole run in view, then
+drags one keyframe across the map with --moves pointer moves. A requestAnimationFrame loop
+records the time of every frame; the figure is the frame interval during the drag, against
+the 16.7 ms budget of a 60 Hz display (ratio < 1: within budget).
+
+For comparison the same loop also runs with the map idle, and while panning the map by
+the same pointer path (MapLibre's own interaction, the floor for any layer drawn on it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tests.e2e.helpers import keyframe_px, login  # noqa: E402
+from tests.e2e.serverkit import chromium, ensure_frontend_built, running_server  # noqa: E402
+
+BUDGET_MS = 1000 / 60
+RULES = "[rules]\nevery_n = 1\nlock_n = 0\nmax_move_m = 0.0\n"
+
+RECORD = """() => { window.__frames = []; window.__rec = true;
+  const tick = (t) => { if (!window.__rec) return; window.__frames.push(t); requestAnimationFrame(tick); };
+  requestAnimationFrame(tick); }"""
+STOP = "() => { window.__rec = false; return window.__frames; }"
+
+
+def intervals(frames: list[float]) -> list[float]:
+    return [b - a for a, b in zip(frames, frames[1:])]
+
+
+def summary(name: str, ivals: list[float]) -> str:
+    if len(ivals) < 2:
+        return f"{name:<34} (too few frames)"
+    s = sorted(ivals)
+    p95 = s[min(len(s) - 1, int(round(0.95 * (len(s) - 1))))]
+    mean = statistics.fmean(ivals)
+    return (f"{name:<34} {len(ivals):>6} {mean:>9.1f} {statistics.median(ivals):>9.1f} {p95:>9.1f} {max(ivals):>9.1f}"
+            f" {1000 / mean:>7.1f} {p95 / BUDGET_MS:>12.2f}")
+
+
+def pointer_path(page, start: tuple[float, float], moves: int) -> float:
+    """Press at `start`, move in a loop around it, release; returns seconds taken."""
+    import math
+
+    t0 = time.perf_counter()
+    page.mouse.move(*start)
+    page.mouse.down()
+    for i in range(1, moves + 1):
+        a = 2 * math.pi * i / moves
+        page.mouse.move(start[0] + 120 * math.sin(a), start[1] + 60 * (1 - math.cos(a)))
+    page.mouse.up()
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--keyframes", type=int, default=10_000, help="keyframes in the run (one per second)")
+    ap.add_argument("--moves", type=int, default=120, help="pointer moves in the drag")
+    args = ap.parse_args()
+
+    ensure_frontend_built()
+    with tempfile.TemporaryDirectory(prefix="posefix-bench-") as tmp, running_server(Path(tmp) / "bench", RULES) as srv:
+        print(f"simulating a {args.keyframes} s drive at 1 Hz ...", flush=True)
+        sim = srv.simulate("sim", duration_s=args.keyframes, rate_hz=1, seed=5, regime="white")
+        t0 = time.perf_counter()
+        run_id = srv.upload_run("bench", sim / "run.csv", timeout_s=600)
+        n_kf = srv.get_json("op1", f"/api/v1/runs/{run_id}")["n_keyframes"]
+        print(f"uploaded run {run_id}: {n_kf} keyframes, ready in {time.perf_counter() - t0:.1f} s", flush=True)
+        with chromium() as browser:
+            page = browser.new_context(viewport={"width": 1280, "height": 800}).new_page()
+            login(page, srv)
+            t0 = time.perf_counter()
+            page.goto(f"{srv.base_url}/#/runs/{run_id}")
+            page.wait_for_function(
+                """() => { const m = window.__posefixMap; return m && m.getSource('pf-keyframes') && m.loaded()
+                      && m.queryRenderedFeatures({layers: ['pf-kf-hit']}).length > 0; }""",
+                timeout=120_000,
+            )
+            page.wait_for_function("() => window.__posefixMap.loaded() && !window.__posefixMap.isMoving()", timeout=60_000)
+            print(f"editor open with {n_kf} keyframes drawn in {time.perf_counter() - t0:.1f} s", flush=True)
+            drawn = page.evaluate("() => { const f = window.__posefixMap.getSource('pf-keyframes')._data; return (f.geojson || f).features.length; }")
+
+            page.evaluate(RECORD)
+            page.wait_for_timeout(2000)
+            idle = intervals(page.evaluate(STOP))
+
+            # Pan: press on empty map (top-right corner area), same pointer path.
+            page.evaluate(RECORD)
+            pan_s = pointer_path(page, (900, 200), args.moves)
+            pan = intervals(page.evaluate(STOP))
+            page.wait_for_function("() => !window.__posefixMap.isMoving()")
+
+            # Drag: press on a keyframe in the middle of the run.
+            index = n_kf // 2
+            start = keyframe_px(page, index)
+            page.evaluate(RECORD)
+            drag_s = pointer_path(page, start, args.moves)
+            drag = intervals(page.evaluate(STOP))
+            page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '1'", timeout=60_000)
+
+    print()
+    print(f"Editor drag benchmark: {drawn} keyframes on screen, {args.moves} pointer moves "
+          f"(drag {drag_s:.1f} s, pan {pan_s:.1f} s), headless Chromium with software WebGL")
+    print(f"{'phase':<34} {'frames':>6} {'mean ms':>9} {'p50 ms':>9} {'p95 ms':>9} {'max ms':>9} {'fps':>7} {'p95/16.7ms':>12}")
+    print(summary("idle map (rAF floor)", idle))
+    print(summary("pan the map (MapLibre baseline)", pan))
+    print(summary("drag a keyframe (posefix)", drag))
+    print(f"budget: {BUDGET_MS:.1f} ms per frame (60 Hz)")
+
+
+if __name__ == "__main__":
+    main()
