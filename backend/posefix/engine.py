@@ -32,7 +32,9 @@ from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
-from posefix.core.solver import SolverResult, solve
+from posefix.core.solver import SolverResult, solve, solve_banded
+
+LOCAL_MARGIN = 30  # keyframes re-optimised beyond those whose terms changed (local solves)
 
 __all__ = [
     "CorrectionConfig",
@@ -204,8 +206,16 @@ class Problem:
         deleted_kf: np.ndarray,
         warm_start: Solution | Correction | None = None,
         flags: list[Refusal] | None = None,
+        local: bool = False,
     ) -> Solution:
-        """Optimise keyframes ``index`` with edits given as keyframe numbers and ENU targets."""
+        """Optimise keyframes ``index`` with edits given as keyframe numbers and ENU targets.
+
+        With ``local`` and a warm start on the same keyframes (a live drag, one more edit),
+        the drift model keeps the previous solve's parameters and only the keyframes whose
+        terms changed, plus ``LOCAL_MARGIN`` on each side, are re-optimised; the rest stay
+        at the previous solution (the edit's effect beyond its neighbouring edits is
+        negligible).  Without ``local`` the full problem is solved (from the warm start).
+        """
         cfg = self.cfg
         k = len(index)
         deleted = np.zeros(k, dtype=bool)
@@ -226,11 +236,18 @@ class Problem:
         edit_c_m = np.asarray(edit_c_m, dtype=float).reshape(-1, 3)
         edit_has_alt = np.asarray(edit_has_alt, dtype=bool)
         lc, uc = cfg.location, cfg.user
+        warm_sol = None if warm_start is None else (
+            warm_start.solution if isinstance(warm_start, Correction) else warm_start)
+        same_rows = warm_sol is not None and np.array_equal(warm_sol.keyframes.index[warm_sol.active], act_rows)
+        frozen = None
+        if local and same_rows and warm_sol.drift.tau_s > 0:
+            frozen = (warm_sol.drift.sigma_b_m**2, warm_sol.drift.tau_s, warm_sol.drift.detected)
         if cfg.drift.enabled and len(e_act):
             drift = estimate_drift(
                 t_act, p_rep, np.where(has_fix[:, None], g, np.nan), e_act, edit_c_m, edit_has_alt,
                 lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
                 cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
+                frozen=frozen,
             )
         else:
             drift = no_drift(len(act_rows))
@@ -248,7 +265,11 @@ class Problem:
             user_idx=e_act, user_c_m=c, user_w=1.0 / user_sigma,
         )
         x0 = self._warm_state(act_rows, p_rep, warm_start)
-        x, result = solve(terms, x0, cfg.solver.method, cfg.solver.max_iterations, cfg.solver.ftol)
+        result = None
+        if local and same_rows and warm_sol.terms is not None and cfg.solver.method == "banded":
+            x, result = self._solve_window(terms, warm_sol.terms, x0)
+        if result is None:
+            x, result = solve(terms, x0, cfg.solver.method, cfg.solver.max_iterations, cfg.solver.ftol)
         p_sol, theta = T.split_state(x)
         q_sol = rot.quat_multiply(rot.matrix_to_quat(static.R_rep), rot.exp_quat(theta))
         # keyframes outside the optimisation keep their reported pose (they leave the output)
@@ -263,6 +284,41 @@ class Problem:
             edited=edited, deleted=deleted,
         )
         return Solution(kfs, result, drift, x, active, list(flags or []), terms)
+
+    def _solve_window(self, terms: T.Terms, old: T.Terms, x0: np.ndarray):
+        """Re-optimise only around the keyframes whose terms changed; None if that is most of the run."""
+        changed = T.changed_keyframes(terms, old)
+        if changed is None:
+            return None, None
+        k = terms.n_keyframes
+        hit = np.flatnonzero(changed)
+        started = time.perf_counter()
+        if len(hit) == 0:
+            costs = T.evaluate(terms, x0, with_jac=False).costs()
+            return x0, SolverResult("converged", "nothing changed", 0, costs, costs, time.perf_counter() - started,
+                                    "banded-lm-window")
+        a = max(int(hit[0]) - LOCAL_MARGIN, 0)
+        b = min(int(hit[-1]) + LOCAL_MARGIN, k - 1)
+        if b - a + 1 > 0.5 * k:
+            return None, None
+        # one held keyframe on each side carries the rest of the run as a boundary condition
+        lo, hi = max(a - 1, 0), min(b + 1, k - 1)
+        sub = T.window_terms(terms, lo, hi)
+        fixed = np.zeros(hi - lo + 1, dtype=bool)
+        fixed[0] = lo < a
+        fixed[-1] = hi > b
+        xs = x0.reshape(-1, 6)
+        cfg = self.cfg.solver
+        x_sub, res = solve_banded(sub, xs[lo:hi + 1].ravel(), cfg.max_iterations, cfg.ftol, fixed=fixed)
+        x = xs.copy()
+        x[lo:hi + 1] = x_sub.reshape(-1, 6)
+        x = x.ravel()
+        before = T.evaluate(terms, x0, with_jac=False).costs()
+        after = T.evaluate(terms, x, with_jac=False).costs()
+        result = SolverResult(res.status, res.message + f" (keyframes {a}..{b} of {k})", res.iterations, before,
+                              after, time.perf_counter() - started, "banded-lm-window",
+                              extra={**res.extra, "window": (a, b)})
+        return x, result
 
     def _warm_state(self, act_rows: np.ndarray, p_rep: np.ndarray, warm) -> np.ndarray | None:
         """Initial state from a previous solution: its corrections interpolated in time."""
@@ -282,7 +338,7 @@ class Problem:
             x0[:, 3 + j] = np.interp(t_new, t_prev, prev[:, 3 + j])
         return x0.ravel()
 
-    def solve(self, edits=None, warm_start: Solution | Correction | None = None) -> Solution:
+    def solve(self, edits=None, warm_start: Solution | Correction | None = None, local: bool = False) -> Solution:
         """Optimise with an ``EditSet`` (edits by sample time); edited samples become keyframes.
 
         Raises ``EditMatchError`` for a time naming no sample and ``EditRefusedError`` when
@@ -290,7 +346,7 @@ class Problem:
         """
         index, edit_kf, c_m, has_alt, deleted_kf = self._resolve_edit_set(edits)
         flags = self._check_rules(index, edit_kf, c_m, deleted_kf)
-        return self.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags)
+        return self.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags, local=local)
 
     def _resolve_edit_set(self, edits):
         from posefix.io.edits import EditSet, match_edits
@@ -324,10 +380,12 @@ class Problem:
         deleted: list[int] = (),
         warm_start: Solution | None = None,
         edited_before: dict[int, tuple[float, float]] | None = None,
+        local: bool = True,
     ) -> Preview:
         """Keyframe-level answer for a live drag on the default keyframes (no full-rate output).
 
-        Refused moves are left out and listed; flagged ones are kept.
+        Refused moves are left out and listed; flagged ones are kept.  With a warm start the
+        solve is local (see ``solve_rows``); pass ``local=False`` for the exact optimum.
         """
         index = self.keyframe_index
         rules = self.cfg.rules
@@ -341,7 +399,8 @@ class Problem:
         edit_kf = np.array([moves[n].index for n in keep], dtype=np.int64)
         has_alt = np.array([moves[n].alt_m is not None for n in keep], dtype=bool)
         deleted_ok = np.array([d for d in deleted if 0 <= int(d) < len(index)], dtype=np.int64)
-        sol = self.solve_rows(index, edit_kf, c_all[keep], has_alt, deleted_ok, warm_start, check.flags)
+        sol = self.solve_rows(index, edit_kf, c_all[keep], has_alt, deleted_ok, warm_start, check.flags,
+                              local=local)
         lat, lon, _ = geodesy.enu_to_geodetic(sol.keyframes.p_enu_m, self.origin)
         return Preview(lon_deg=lon, lat_deg=lat, solution=sol, refusals=check.refusals)
 

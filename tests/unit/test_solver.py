@@ -67,3 +67,27 @@ def test_result_reports_status_message_and_time():
     assert set(r.to_json()) >= {"status", "message", "iterations", "cost_before", "cost_after", "time_s"}
     with pytest.raises(ValueError, match="unknown solver"):
         S.solve(terms, method="magic")
+
+
+def test_windowed_solve_with_held_boundaries_matches_the_full_solve_locally():
+    terms = random_terms(k=400, n_user=8, seed=6)
+    x_star, _ = S.solve_banded(terms)
+    more = dataclasses.replace(
+        terms,
+        user_idx=np.append(terms.user_idx, 200),
+        user_c_m=np.vstack([terms.user_c_m, x_star.reshape(-1, 6)[200, :3] + [2.0, 1.0, 0.0]]),
+        user_w=np.vstack([terms.user_w, [2.0, 2.0, 0.0]]),
+    )
+    changed = T.changed_keyframes(more, terms)
+    assert np.flatnonzero(changed).tolist() == [200]
+    x_full, _ = S.solve_banded(more, x0=x_star)
+    lo, hi = 120, 280
+    sub = T.window_terms(more, lo, hi)
+    fixed = np.zeros(hi - lo + 1, dtype=bool)
+    fixed[[0, -1]] = True
+    x_sub, r = S.solve_banded(sub, x_star.reshape(-1, 6)[lo:hi + 1].ravel(), fixed=fixed)
+    x_sub = x_sub.reshape(-1, 6)
+    assert np.allclose(x_sub[[0, -1]], x_star.reshape(-1, 6)[[lo, hi]])  # held
+    near = slice(200 - lo - 30, 200 - lo + 31)
+    assert np.max(np.abs(x_sub[near, :3] - x_full.reshape(-1, 6)[170:231, :3])) < 0.05
+    assert r.status == "converged"

@@ -238,12 +238,15 @@ def estimate_drift(
     prior_tau_s: float,
     min_edits_for_estimate: int = 3,
     window: int = 5,
+    frozen: tuple[float, float, bool] | None = None,
 ) -> DriftEstimate:
     """Fit the bias model to the edits; see the module docstring.
 
     kf_t_s (k,), p_rep_m (k,3) reported keyframe positions, g_m (k,3) location measurements
     (NaN where none), edit_kf (m,) keyframe of each edit, edit_c_m (m,3) edit targets
-    (vertical ignored where ``edit_has_alt`` is False).
+    (vertical ignored where ``edit_has_alt`` is False).  ``frozen`` = (sigma_b^2, tau_s,
+    detected) holds the model's parameters (a live drag re-uses those of the last solve so
+    one more edit changes the bias only around it).
     """
     k = len(kf_t_s)
     if len(edit_kf) == 0:
@@ -258,7 +261,10 @@ def estimate_drift(
     n_win = min(2 * window + 1, k)
     noise_h = np.full(len(t_e), sigma_u_h_m**2 + (MEDIAN_EFFICIENCY * sigma_w_h_m) ** 2 / n_win)
     noise_v = np.full(len(t_e), sigma_u_v_m**2 + (MEDIAN_EFFICIENCY * sigma_w_v_m) ** 2 / n_win)
-    if len(t_e) >= max(min_edits_for_estimate, 2):
+    if frozen is not None:
+        sigma2, tau = float(frozen[0]), float(frozen[1])
+        q = 2.0 * sigma2 / tau
+    elif len(t_e) >= max(min_edits_for_estimate, 2):
         q = max(estimate_walk(t_e, d[:, :2], noise_h), 1e-6)
         sigma2 = max(float(np.mean(0.5 * np.sum(d[:, :2] ** 2, axis=1) - noise_h)), 1e-4)
         tau = float(np.clip(2.0 * sigma2 / q, MIN_TAU_S, MAX_TAU_S))
@@ -285,6 +291,8 @@ def estimate_drift(
     typical_dt = float(np.median(np.diff(t_e))) if len(t_e) > 1 else float(kf_t_s[-1] - kf_t_s[0])
     median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise_h[0] / len(t_e))
     detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise_h[0])
+    if frozen is not None:
+        detected = bool(frozen[2])
     if not detected:
         # the offsets are what edit and GNSS noise alone would give: the location term is
         # unbiased as far as the edits can tell, and is left exactly as configured

@@ -109,8 +109,13 @@ def solve_banded(
     max_iterations: int = 100,
     ftol: float = 1e-10,
     initial_lambda: float = 1e-6,
+    fixed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, SolverResult]:
-    """Levenberg-Marquardt on the banded normal equations (fast path)."""
+    """Levenberg-Marquardt on the banded normal equations (fast path).
+
+    ``fixed`` (k,) bool marks keyframes held at ``x0`` (boundary of a windowed solve): their
+    rows and columns of the normal equations are replaced by the identity, so their step is 0.
+    """
     started = time.perf_counter()
     x = T.initial_state(terms) if x0 is None else np.array(x0, dtype=float, copy=True)
     ev = T.evaluate(terms, x, with_jac=True)
@@ -122,6 +127,10 @@ def solve_banded(
     while it < max_iterations:
         it += 1
         D, U, g = T.normal_equations(terms, ev)
+        if fixed is not None:
+            D[fixed] = np.eye(6)
+            g.reshape(-1, 6)[fixed] = 0.0
+            U[fixed[:-1] | fixed[1:]] = 0.0
         diag = np.maximum(np.einsum("kii->ki", D).ravel(), 1e-12)
         gnorm = float(np.max(np.abs(g))) if g.size else 0.0
         if gnorm <= 1e-12 * max(1.0, F):

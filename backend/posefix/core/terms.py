@@ -32,6 +32,7 @@ with j = i + 1.  Jacobians, using ``Exp(theta + d) ~= Exp(theta) Exp(Jr(theta) d
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -120,6 +121,42 @@ def build_terms(
         loss=loss,
         loss_scale=float(loss_scale),
     )
+
+
+def window_terms(terms: Terms, a: int, b: int) -> Terms:
+    """The terms that touch only keyframes a..b (inclusive), re-indexed from 0."""
+    loc = (terms.loc_idx >= a) & (terms.loc_idx <= b)
+    usr = (terms.user_idx >= a) & (terms.user_idx <= b)
+    return dataclasses.replace(
+        terms,
+        p_rep_m=terms.p_rep_m[a:b + 1], R_rep=terms.R_rep[a:b + 1],
+        loc_idx=terms.loc_idx[loc] - a, loc_g_m=terms.loc_g_m[loc], loc_w=terms.loc_w[loc],
+        user_idx=terms.user_idx[usr] - a, user_c_m=terms.user_c_m[usr], user_w=terms.user_w[usr],
+        rel_delta_m=terms.rel_delta_m[a:b], rel_w_t=terms.rel_w_t[a:b], rel_dR=terms.rel_dR[a:b],
+        rel_w_r=terms.rel_w_r[a:b], rel_dq=terms.rel_dq[a:b],
+        grav_zb=terms.grav_zb[a:b + 1], grav_w=terms.grav_w[a:b + 1],
+    )
+
+
+def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: float = 1e-3) -> np.ndarray | None:
+    """(k,) bool: keyframes whose location or user terms differ between two problems on the
+    same keyframes (None when they cannot be compared: other keyframes or located set)."""
+    k = new.n_keyframes
+    if old.n_keyframes != k or not np.array_equal(new.loc_idx, old.loc_idx):
+        return None
+    out = np.zeros(k, dtype=bool)
+    moved = np.any(np.abs(new.loc_g_m - old.loc_g_m) > tol_m, axis=1)
+    rew = np.any(np.abs(new.loc_w - old.loc_w) > tol_rel * np.abs(old.loc_w), axis=1)
+    out[new.loc_idx[moved | rew]] = True
+    old_u = {int(i): (c, w) for i, c, w in zip(old.user_idx, old.user_c_m, old.user_w)}
+    new_u = {int(i): (c, w) for i, c, w in zip(new.user_idx, new.user_c_m, new.user_w)}
+    for i in set(old_u) ^ set(new_u):
+        out[i] = True
+    for i in set(old_u) & set(new_u):
+        (c0, w0), (c1, w1) = old_u[i], new_u[i]
+        if np.any(np.abs(c1 - c0) * np.minimum(w0, w1) > 1e-6) or np.any(w1 != w0):
+            out[i] = True
+    return out
 
 
 # ----------------------------------------------------------------------------- robust loss
