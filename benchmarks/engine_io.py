@@ -9,7 +9,8 @@ repeats, so they move with the load other processes put on it.
 - simulate: ``posefix.core.simulate.simulate`` (target: "a couple of seconds").
 - CSV parse: ``posefix.io.read_run`` vs the naive baseline (stdlib ``csv`` reading every
   row and converting fields one by one) and the issue's target (well under 1 s).
-- CSV write: ``posefix.io.write_run``.
+- CSV write: ``posefix.io.write_run``; GeoJSON/GPX write and GeoJSON read beside the CSV
+  figures (GPX read, through gpxpy, is far slower and left out).
 - posefix correct: the whole process, CSV in and out (target 2.5 s).
 """
 
@@ -71,6 +72,11 @@ def main() -> None:
         rows.append(("CSV parse vs stdlib csv", t_read, t_naive, "baseline"))
         rows.append(("CSV parse vs target", t_read, 1.0, "target"))
         rows.append(("CSV write", t_write, t_naive, "baseline (naive parse)"))
+        for ext in ("geojson", "gpx"):
+            t_w = best_of(lambda: write_run(s.run, d / f"run.{ext}"), 1)
+            rows.append((f"{ext} write", t_w, t_write, "CSV write"))
+        t_r = best_of(lambda: read_run(d / "run.geojson"), 1)
+        rows.append(("geojson read", t_r, t_read, "CSV parse"))
         cmd = [sys.executable, "-c", "from posefix.cli import main; main()", "correct", str(d / "run.csv"),
                "--edits", str(d / "edits.json"), "--output", str(d / "out.csv"), "--quiet"]
 

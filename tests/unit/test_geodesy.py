@@ -135,3 +135,21 @@ def test_quaternion_forms_equal_the_matrices():
     assert np.abs(quat_to_matrix(quat_ecef_to_enu(lat, lon)) - rotation_ecef_to_enu(lat, lon)).max() < 1e-14
     o = (47.0, -3.0, 10.0)
     assert np.abs(quat_to_matrix(quat_local_enu_to_origin_enu(lat, lon, o)) - rotation_local_enu_to_origin_enu(lat, lon, o)).max() < 1e-14
+
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    lat=st.floats(-90, 90), lon=st.floats(-180, 180), alt=st.floats(-1000, 20000),
+    olat=st.floats(-89, 89), olon=st.floats(-180, 180), oalt=st.floats(-100, 3000),
+)
+def test_enu_round_trip_property(lat, lon, alt, olat, olon, oalt):
+    o = (olat, olon, oalt)
+    p = geodetic_to_enu(np.array([lat]), np.array([lon]), np.array([alt]), o)
+    lat2, lon2, alt2 = enu_to_geodetic(p, o)
+    # compare as ECEF points: longitude is undefined at the poles
+    d = geodetic_to_ecef(lat2, lon2, alt2) - geodetic_to_ecef(lat, lon, alt)
+    assert np.abs(d).max() < 1e-4  # 0.1 mm even across the globe (12,000 km from the origin)
