@@ -207,7 +207,7 @@ def run_to_table(run: PoseRun, exact: bool = False):
         a = np.ascontiguousarray(a, dtype=float)
         places = DECIMALS.get("q" if name in QUAT_COLUMNS else name)
         if places is not None and not exact:
-            a = np.round(a, places)
+            a = np.round(a, places) + 0.0  # + 0.0 turns -0.0 into 0.0 ("-0" in the file)
         return pa.array(a, from_pandas=True)  # NaN -> empty field
 
     qarr = run.q_body_to_enu_wxyz
