@@ -76,6 +76,18 @@ def _header(path: Path, data: bytes) -> list[str]:
     return names
 
 
+def _read_head(path: Path, chunk: int = 1 << 16) -> bytes:
+    """The file's first line (or all of it if shorter), read without loading the rest."""
+    with open(path, "rb") as fh:
+        head = fh.read(chunk)
+        while b"\n" not in head:
+            more = fh.read(chunk)
+            if not more:
+                break
+            head += more
+    return head
+
+
 def _data_line_numbers(data: bytes) -> np.ndarray:
     """1-based physical line numbers of the non-blank lines after the header."""
     buf = np.frombuffer(data, dtype=np.uint8)
@@ -115,6 +127,19 @@ def _locate_failure(path: Path, data: bytes, names: list[str]) -> RunFormatError
     return RunFormatError(path, None, None, "the file could not be parsed as CSV")
 
 
+def _parse(pacsv, pa, source, names: list[str], column_types: dict):
+    return pacsv.read_csv(
+        source,
+        # our own parse of the header (stripped names, BOM removed) names the columns
+        read_options=pacsv.ReadOptions(use_threads=True, block_size=1 << 24, column_names=names, skip_rows=1),
+        parse_options=pacsv.ParseOptions(newlines_in_values=False),
+        convert_options=pacsv.ConvertOptions(
+            column_types=column_types, null_values=NULL_VALUES, strings_can_be_null=False,
+            quoted_strings_can_be_null=False,
+        ),
+    )
+
+
 def read_csv(path: str | os.PathLike) -> PoseRun:
     """Read an interchange CSV file into a ``PoseRun``.
 
@@ -130,24 +155,27 @@ def read_csv(path: str | os.PathLike) -> PoseRun:
 
     path = Path(path)
     try:
-        data = path.read_bytes()
+        head = _read_head(path)
     except OSError as exc:
         raise RunFormatError(path, None, None, f"cannot read file: {exc.strerror or exc}") from None
-    names = _header(path, data)
+    names = _header(path, head)
     column_types = {c: (pa.float64() if c in NUMERIC else pa.string()) for c in names}
+    cache: dict[str, bytes] = {}
+
+    def data() -> bytes:
+        # the whole file, only needed to name the line of an error
+        if "data" not in cache:
+            cache["data"] = path.read_bytes()
+        return cache["data"]
+
     try:
-        table = pacsv.read_csv(
-            pa.py_buffer(data),
-            # our own parse of the header (stripped names, BOM removed) names the columns
-            read_options=pacsv.ReadOptions(use_threads=True, block_size=1 << 24, column_names=names, skip_rows=1),
-            parse_options=pacsv.ParseOptions(newlines_in_values=False),
-            convert_options=pacsv.ConvertOptions(
-                column_types=column_types, null_values=NULL_VALUES, strings_can_be_null=False,
-                quoted_strings_can_be_null=False,
-            ),
-        )
+        with pa.memory_map(str(path)) as source:
+            table = _parse(pacsv, pa, source, names, column_types)
     except (pa.ArrowInvalid, pa.ArrowTypeError):
-        raise _locate_failure(path, data, names) from None
+        raise _locate_failure(path, data(), names) from None
+    except OSError as exc:
+        raise RunFormatError(path, None, None, f"cannot read file: {exc.strerror or exc}") from None
+
     n = table.num_rows
     if n == 0:
         raise RunFormatError(path, 2, None, "the run is empty (header but no samples)")
@@ -156,7 +184,7 @@ def read_csv(path: str | os.PathLike) -> PoseRun:
     def line_of_row(i: int) -> int:
         nonlocal lines
         if lines is None:
-            lines = _data_line_numbers(data)
+            lines = _data_line_numbers(data())
         return int(lines[i]) if i < len(lines) else i + 2
 
     def numeric(name: str, nullable: bool) -> np.ndarray:
