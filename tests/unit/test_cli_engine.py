@@ -108,9 +108,11 @@ def test_comma2k19_corrects_with_edits(comma_edits, tmp_path):
     fixed = read_run(out)
     o = (src.lat_deg[0], src.lon_deg[0], src.alt_m[0])
     d = geodetic_to_enu(fixed.lat_deg, fixed.lon_deg, fixed.alt_m, o) - geodetic_to_enu(src.lat_deg, src.lon_deg, src.alt_m, o)
-    # the edited samples moved about 2 m north; the whole run follows them
-    assert np.all(np.abs(d[rows, 1] - 2.0) < 0.5)
-    assert np.median(d[:, 1]) > 1.0
+    # the edited samples move most of the way north (the u-blox fixes pull the other way
+    # with their own, weaker weight); the whole run follows them, east barely changes
+    assert np.all((d[rows, 1] > 1.0) & (d[rows, 1] < 2.2))
+    assert np.median(d[:, 1]) > 0.8
+    assert np.abs(d[:, 0]).max() < 0.5
 
 
 def test_convert_between_formats(tmp_path):

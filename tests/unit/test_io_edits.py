@@ -81,3 +81,22 @@ def test_edits_written_by_the_simulator_match_exactly(tmp_path):
     assert json.loads((tmp_path / "e.json").read_text())["edits"][0]["t"] == run.t_s[5]
     assert match_edits(run, read_edits(tmp_path / "e.json")).move_index.tolist() == [5, 17]
     assert np.isfinite(run.t_s).all()
+
+
+def test_unmatched_edit_read_from_a_file_names_its_line(tmp_path):
+    run = small_run(n=20)
+    p = tmp_path / "edits.json"
+    t = run.t_s.tolist()
+    p.write_text('{"edits": [\n'
+                 f' {{"t": {t[2]!r}, "lat": 60.0, "lon": 24.0}},\n'
+                 f' {{"t": {t[2] + 0.01!r}, "lat": 60.0, "lon": 24.0}}\n'
+                 f'],\n"deleted": [{t[2]!r}]}}')
+    with pytest.raises(EditMatchError) as info:
+        match_edits(run, read_edits(p))
+    assert (info.value.file, info.value.line, info.value.field) == (str(p), 3, "edits[1].t")
+    p.write_text('{"edits": [\n'
+                 f' {{"t": {t[2]!r}, "lat": 60.0, "lon": 24.0}}\n'
+                 f'],\n"deleted": [{t[2]!r}]}}')
+    with pytest.raises(EditMatchError, match="same sample") as info:
+        match_edits(run, read_edits(p))
+    assert (info.value.line, info.value.field) == (4, "deleted[0]")

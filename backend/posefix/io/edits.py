@@ -49,6 +49,10 @@ class EditSet:
     moves: list[Move] = field(default_factory=list)
     deleted: list[float] = field(default_factory=list)
     source: str = ""
+    # 1-based lines in ``source`` of each move's object and of the "deleted" list, when
+    # read from a file (for messages); empty otherwise.
+    move_lines: list[int | None] = field(default_factory=list)
+    deleted_line: int | None = None
 
     def __len__(self) -> int:
         return len(self.moves) + len(self.deleted)
@@ -89,7 +93,7 @@ def _number(obj: Any, key: str, path: str, optional: bool = False) -> float | No
     return v
 
 
-def _parse(doc: Any) -> tuple[list[Move], list[float]]:
+def _parse(doc: Any) -> tuple[list[Move], list[float], list[int | None]]:
     if not isinstance(doc, dict):
         raise _Bad(doc, "$", 'top level must be an object {"edits": [...], "deleted": [...]}')
     unknown = set(doc) - {"edits", "deleted"}
@@ -102,6 +106,7 @@ def _parse(doc: Any) -> tuple[list[Move], list[float]]:
     if not isinstance(deleted, list):
         raise _Bad(doc, "deleted", "must be a list of times")
     moves = []
+    lines: list[int | None] = []
     for i, e in enumerate(edits):
         path = f"edits[{i}]"
         if not isinstance(e, dict):
@@ -118,12 +123,13 @@ def _parse(doc: Any) -> tuple[list[Move], list[float]]:
         if abs(lon) > 180:
             raise _Bad(e, f"{path}.lon", f"longitude {lon} is outside [-180, 180]")
         moves.append(Move(t, lat, lon, alt))
+        lines.append(getattr(e, "line", None))
     dels = []
     for i, t in enumerate(deleted):
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
             raise _Bad(doc, f"deleted[{i}]", f"not a finite time in seconds: {t!r}")
         dels.append(float(t))
-    return moves, dels
+    return moves, dels, lines
 
 
 def read_edits(path: str | os.PathLike) -> EditSet:
@@ -138,10 +144,16 @@ def read_edits(path: str | os.PathLike) -> EditSet:
     except json.JSONDecodeError as exc:
         raise EditsFormatError(path, exc.lineno, None, f"not valid JSON: {exc.msg}") from None
     try:
-        moves, dels = _parse(doc)
+        moves, dels, lines = _parse(doc)
     except _Bad as exc:
         raise EditsFormatError(path, getattr(exc.obj, "line", None), exc.field, exc.message) from None
-    return EditSet(moves=moves, deleted=dels, source=str(path))
+    deleted_line = _line_of_key(text, "deleted")
+    return EditSet(moves=moves, deleted=dels, source=str(path), move_lines=lines, deleted_line=deleted_line)
+
+
+def _line_of_key(text: str, key: str) -> int | None:
+    pos = text.find(f'"{key}"')
+    return None if pos < 0 else text.count("\n", 0, pos) + 1
 
 
 def write_edits(edits: EditSet, path: str | os.PathLike) -> None:
@@ -183,12 +195,17 @@ def match_edits(run: PoseRun, edits: EditSet) -> MatchedEdits:
     t_dels = np.array(edits.deleted, dtype=float)
     mi, mok = _match_times(run.t_s, t_moves) if t_moves.size else (np.zeros(0, int), np.zeros(0, bool))
     di, dok = _match_times(run.t_s, t_dels) if t_dels.size else (np.zeros(0, int), np.zeros(0, bool))
+    def line_of(name: str, k: int) -> int | None:
+        if name.startswith("edits"):
+            return edits.move_lines[k] if k < len(edits.move_lines) else None
+        return edits.deleted_line
+
     for name, times, rows, ok in (("edits[{}].t", t_moves, mi, mok), ("deleted[{}]", t_dels, di, dok)):
         bad = np.flatnonzero(~ok)
         if bad.size:
             k = int(bad[0])
             raise EditMatchError(
-                src, None, name.format(k),
+                src, line_of(name, k), name.format(k),
                 f"t={float(times[k])!r} s matches no sample of {run.source or 'the run'} to the millisecond "
                 f"(nearest sample t={float(run.t_s[rows[k]])!r} s)",
             )
@@ -197,6 +214,6 @@ def match_edits(run: PoseRun, edits: EditSet) -> MatchedEdits:
         for k, r in enumerate(rows.tolist()):
             label = name.format(k)
             if r in seen:
-                raise EditMatchError(src, None, label, f"names the same sample (t={float(run.t_s[r])!r} s) as {seen[r]}")
+                raise EditMatchError(src, line_of(name, k), label, f"names the same sample (t={float(run.t_s[r])!r} s) as {seen[r]}")
             seen[r] = label
     return MatchedEdits(move_index=mi.astype(np.intp), deleted_index=di.astype(np.intp))
