@@ -5,6 +5,7 @@ drained in-process, and the tasks clock under test control."""
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import io
 import os
 import uuid
@@ -74,6 +75,18 @@ class Env:
             self.users[username] = u.id
             return u.id
 
+    def add_operators(self, names: list[str]) -> None:
+        """Many operators at once: real user rows sharing one argon2 hash (hashing is slow on purpose)."""
+        from posefix.security import hash_password
+        from posefix.users.models import User
+
+        digest = hash_password(PASSWORD)
+        with self.db.transaction() as s:
+            rows = [User(username=n, password_hash=digest, role="operator", disabled=False) for n in names]
+            s.add_all(rows)
+            s.flush()
+            self.users.update({u.username: u.id for u in rows})
+
     def client(self, username: str) -> TestClient:
         if username not in self.clients:
             c = TestClient(self.app, headers={"Origin": ORIGIN})
@@ -88,7 +101,7 @@ class Env:
 
     def import_run(self, name: str, seed: int, *, duration_s: float = 60.0, owner: str = "admin") -> int:
         """A simulated drive uploaded through POST /runs; its truth is kept for gold tests."""
-        sim = simulate(duration_s=duration_s, rate_hz=5.0, edit_every_s=0, seed=seed, regime="drift")
+        sim = _simulation(seed, duration_s)
         buf = Path(self.settings.data_dir) / f"{name}.csv"
         write_run(sim.run, buf)
         with buf.open("rb") as fh:
@@ -112,6 +125,11 @@ class Env:
         r = self.client(username).get(f"/api/v1/runs/{run_id}/keyframes")
         assert r.status_code == 200, r.text
         return r.json()["features"]
+
+
+@functools.lru_cache(maxsize=32)
+def _simulation(seed: int, duration_s: float) -> Simulation:
+    return simulate(duration_s=duration_s, rate_hz=5.0, edit_every_s=0, seed=seed, regime="drift")
 
 
 def shifted(lon: float, lat: float, east_m: float, north_m: float) -> tuple[float, float]:

@@ -69,6 +69,7 @@ def geometric_median(
     safe = np.where(empty, 1.0, wsum)
     y = np.einsum("ik,ikd->kd", w, np.where(v[..., None], x, 0.0)) / safe[:, None]  # weighted mean start
     eps = 1e-12
+    vertex, is_vertex = _vertex_medians(x, w)
     for _ in range(max_iter):
         diff = x - y[None]                                  # (m, k, d)
         d = np.linalg.norm(diff, axis=2)                    # (m, k)
@@ -91,8 +92,35 @@ def geometric_median(
         y = y_new
         if not np.any(step > tol_m):
             break
+    y = np.where(is_vertex[:, None], vertex, y)
     y[empty] = np.nan
     return y
+
+
+def _vertex_medians(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keyframes whose median is one of the data points, found exactly.
+
+    A data point ``x_p`` (with ``eta_p`` the weight of the points on it) is the median iff
+    ``|R~(x_p)| <= eta_p`` (the subgradient condition Vardi-Zhang's step converges to). We use
+    ``<``: at equality (e.g. two points) a whole segment are medians, and the iteration from
+    the mean returns its midpoint. Testing directly avoids Weiszfeld's slow linear approach
+    to a vertex. Loops over the m
+    candidates, vectorised over keyframes.
+    """
+    m, k, d = x.shape
+    vertex = np.zeros((k, d))
+    found = np.zeros(k, dtype=bool)
+    for p in range(m):
+        diff = x - x[p][None]                           # (m, k, d)
+        dist = np.linalg.norm(diff, axis=2)             # (m, k)
+        on = dist <= 1e-9
+        eta = np.where(on, w, 0.0).sum(axis=0)
+        inv = np.where(on, 0.0, w / np.maximum(dist, 1e-300))
+        r = np.linalg.norm(np.einsum("ik,ikd->kd", inv, diff), axis=1)
+        ok = (w[p] > 0) & (r < eta) & ~found  # strict: an even split (two points) keeps the midpoint
+        vertex[ok] = x[p][ok]
+        found |= ok
+    return vertex, found
 
 
 def pairwise_separation_m(x_m: np.ndarray) -> np.ndarray:

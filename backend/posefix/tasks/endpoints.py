@@ -34,7 +34,8 @@ from posefix.users.service import Principal
 
 router = APIRouter(tags=["tasks"])
 
-OperatorUser = Annotated[Principal, Depends(require(Role.operator))]
+# Anyone who edits may take work (reviewers and admins too: they just never review their own).
+OperatorUser = Annotated[Principal, Depends(require(Role.operator, Role.reviewer, Role.admin))]
 RequesterUser = Annotated[Principal, Depends(require(Role.admin, Role.client))]
 AdminOnly = Annotated[Principal, Depends(require(Role.admin))]
 AdminUpload = Annotated[Principal, Depends(require(Role.admin, allow_multipart=True))]
@@ -240,9 +241,8 @@ def review(assignment_id: int, body: ReviewIn, principal: ReviewerUser, session:
 # -- operators ----------------------------------------------------------------------------------------
 
 def _operators(session: Any, ids: list[int] | None = None) -> list[User]:
-    stmt = select(User).where(User.role == Role.operator)
-    if ids is not None:
-        stmt = stmt.where(User.id.in_(ids))
+    # the list is of operators; a named user may be anyone who takes work
+    stmt = select(User).where(User.role == Role.operator) if ids is None else select(User).where(User.id.in_(ids))
     return list(session.scalars(stmt.order_by(User.username)))
 
 

@@ -161,10 +161,8 @@ def _compare(c: Comparator, have: float, want: Any) -> bool:
 
 
 def _fmt(x: Any) -> str:
-    if isinstance(x, float) and x.is_integer():
-        return str(int(x))
     if isinstance(x, float):
-        return f"{x:.2f}"
+        return f"{x:.6g}"
     return str(x)
 
 
