@@ -289,14 +289,21 @@ async def http_tile_rate(base: str, cookies: httpx.Cookies, source: str, keys: l
 # ----------------------------------------------------------------------------- load
 
 
-async def operator_loop(base: str, username: str, run_id: int, tiles: list[tuple[int, int, int]],
+def login_operators(base: str, n_operators: int) -> list[httpx.Cookies]:
+    """One browser session per operator, made before the load starts (logins are not timed:
+    argon2id is slow on purpose)."""
+    sessions = []
+    for i in range(n_operators):
+        client = login(base, f"bench-op{i:03d}", OPERATOR_PASSWORD)
+        sessions.append(client.cookies)
+        client.close()
+    return sessions
+
+
+async def operator_loop(base: str, cookies: httpx.Cookies, run_id: int, tiles: list[tuple[int, int, int]],
                         stop_at: float, samples: Samples, seed: int) -> None:
     rng = random.Random(seed)
-    async with httpx.AsyncClient(base_url=base, headers={"Origin": base}, timeout=30) as client:
-        response = await client.post("/api/v1/auth/login", json={"username": username, "password": OPERATOR_PASSWORD})
-        if response.status_code != 200:
-            samples.errors.append(f"login {username}: {response.status_code}")
-            return
+    async with httpx.AsyncClient(base_url=base, headers={"Origin": base}, cookies=cookies, timeout=30) as client:
         features: list[dict] = []
         revision = 0
 
@@ -329,12 +336,12 @@ async def operator_loop(base: str, username: str, run_id: int, tiles: list[tuple
             await asyncio.sleep(rng.uniform(0.5, 1.5))
 
 
-async def run_load(base: str, n_operators: int, seconds: float, run_id: int,
+async def run_load(base: str, sessions: list[httpx.Cookies], seconds: float, run_id: int,
                    tiles: list[tuple[int, int, int]]) -> Samples:
     samples = Samples()
     stop_at = time.perf_counter() + seconds
     await asyncio.gather(*(
-        operator_loop(base, f"bench-op{i:03d}", run_id, tiles, stop_at, samples, seed=i) for i in range(n_operators)
+        operator_loop(base, cookies, run_id, tiles, stop_at, samples, seed=i) for i, cookies in enumerate(sessions)
     ))
     return samples
 
@@ -424,7 +431,8 @@ def main() -> None:
                             note=f"{errors} errors" if errors else ""))
 
         print(f"· load: {n_operators} operators for {load_s:.0f} s", flush=True)
-        load = asyncio.run(run_load(base, n_operators, load_s, run_id, keys[-40:]))
+        sessions = login_operators(base, n_operators)
+        load = asyncio.run(run_load(base, sessions, load_s, run_id, keys[-40:]))
         rows.append(Row(f"load: requests ({n_operators} operators, {load_s:.0f} s)", len(load.latencies_s), "",
                         None, note=f"{len(load.latencies_s) / load_s:.0f} req/s"))
         rows.append(Row("load: errors", len(load.errors), "", None,
@@ -435,6 +443,11 @@ def main() -> None:
             rows.append(Row(f"load: p95 of {kind} requests", float(np.percentile(latencies, 95)) * 1000.0, "ms", None,
                             note=f"{len(latencies)} requests"))
         admin.close()
+    except BaseException:
+        print_table(rows)
+        print(f"the benchmark stopped early; server log: {workdir / 'server.log'}", file=sys.stderr)
+        args.keep = True
+        raise
     finally:
         if server is not None:
             server.send_signal(signal.SIGINT)
