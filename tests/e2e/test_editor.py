@@ -98,8 +98,8 @@ class TestDragPreviewUndoSubmit:
         page.mouse.move(*start)
         page.mouse.down()
         page.mouse.move(end[0], end[1], steps=8)
-        staged = page.evaluate("() => { const f = window.__posefixMap.getSource('pf-staging')._data; return (f.geojson || f).features.length; }")
-        assert staged == 2
+        page.wait_for_function("() => { const f = window.__posefixMap.getSource('pf-staging')._data; return (f.geojson || f).features.length === 2; }")
+        assert editor_data(page, "unsaved") == "0"  # staged, not yet an edit
         page.mouse.up()
         wait_unsaved(page, 1)
         wait_preview(page)

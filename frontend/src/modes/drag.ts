@@ -24,11 +24,17 @@ export function modeDrag(): Mode {
       map.dragPan.disable();
       map.getCanvasContainer().style.cursor = "grabbing";
 
+      // Pointer events can outnumber frames: stage at most once per animation frame.
+      let frame = 0;
+      const flush = () => {
+        frame = 0;
+        store.update((s) => stageDrag(s, start.index, last));
+      };
       const onMove = (e: MapMouseEvent | MapTouchEvent) => {
         if (!moved && startPx.dist(e.point) < CLICK_TOLERANCE_PX) return;
         moved = true;
         last = [e.lngLat.lng, e.lngLat.lat];
-        store.update((s) => stageDrag(s, start.index, last));
+        if (!frame) frame = requestAnimationFrame(flush);
       };
       const onUp = (e?: MapMouseEvent | MapTouchEvent) => {
         if (e && "lngLat" in e && e.type !== "touchend") last = [e.lngLat.lng, e.lngLat.lat];
@@ -56,6 +62,7 @@ export function modeDrag(): Mode {
       map.on("touchcancel", onTouchEnd);
       window.addEventListener("keydown", onKey);
       off = [
+        () => cancelAnimationFrame(frame),
         () => map.off("mousemove", onMove),
         () => map.off("mouseup", onMouseUp),
         () => map.off("touchmove", onTouchMove),

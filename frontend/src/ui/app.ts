@@ -11,6 +11,7 @@ import { clear, h } from "./dom";
 import { renderEditor } from "./editor/view";
 import { renderHome } from "./home";
 import { renderLogin } from "./login";
+import { renderTasksRoute, tasksNav } from "../tasks/routes";
 
 export interface AppContext {
   user: UserPublic | null;
@@ -49,6 +50,7 @@ export function startApp(root: HTMLElement): void {
         u ? h("a", { href: "#/" }, "My runs") : null,
         u && u.role === "admin" ? h("a", { href: "#/admin/runs" }, "Runs (admin)") : null,
         u && u.role === "admin" ? h("a", { href: "#/admin/tiles" }, "Tile sources") : null,
+        ...tasksNav(u),
       ),
       u
         ? h(
@@ -95,7 +97,8 @@ export function startApp(root: HTMLElement): void {
       }
     }
     const m = path.match(/^\/runs\/([^/?]+)/);
-    if (m) cleanup = renderEditor(main, ctx, decodeURIComponent(m[1]));
+    if (path.startsWith("/tasks")) cleanup = renderTasksRoute(path, main, ctx);
+    else if (m) cleanup = renderEditor(main, ctx, decodeURIComponent(m[1]));
     else if (path.startsWith("/admin/runs")) cleanup = renderAdminRuns(main, ctx);
     else if (path.startsWith("/admin/tiles")) cleanup = renderAdminTiles(main, ctx);
     else cleanup = renderHome(main, ctx);

@@ -30,6 +30,8 @@ export class EditorController {
   private unsub: () => void;
   /** Messages for the operator (refusals of re-applied edits, submit results). */
   onNotice: (text: string) => void = () => {};
+  /** Set by a task page: submit to the assignment instead of the run (resolves to a notice). */
+  submitTo: ((doc: RunDoc, edits: Edits, comment: string) => Promise<string>) | null = null;
 
   constructor(readonly runId: string) {
     this.unsub = this.store.subscribe((next, prev) => {
@@ -155,6 +157,17 @@ export class EditorController {
     }
     const doc = s.doc;
     this.store.update((x) => ({ ...x, submit: { kind: "sending" }, error: null }));
+    if (this.submitTo) {
+      try {
+        const notice = await this.submitTo(doc, edits, comment);
+        localStorage.removeItem(this.storageKey);
+        this.store.update((x) => ({ ...x, submit: { kind: "idle" } }));
+        this.onNotice(notice);
+      } catch (err) {
+        this.submitFailed(err, doc);
+      }
+      return;
+    }
     let jobId: string;
     try {
       const r = await api.submitEdits(doc.runId, doc.revision, edits, comment);

@@ -21,8 +21,9 @@ import { EditorController } from "./controller";
 import { ImagesPanel } from "./images";
 import { driftInfo, legend, selectionInfo, statusBar, toolbarState } from "./panels";
 
-export function renderEditor(main: HTMLElement, _app: AppContext, runId: string): () => void {
+export function renderEditor(main: HTMLElement, _app: AppContext, runId: string, onController?: (ctl: EditorController) => void): () => void {
   const ctl = new EditorController(runId);
+  onController?.(ctl);
   const store = ctl.store;
   const cleanups: (() => void)[] = [() => ctl.dispose()];
 
