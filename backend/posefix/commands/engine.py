@@ -36,7 +36,8 @@ class CommandError(Exception):
 
 
 def _fail(message: str) -> None:
-    typer.echo(f"error: {message}", err=True)
+    one_line = " ".join(str(message).split())  # messages from libraries may span lines
+    typer.echo(f"error: {one_line}", err=True)
     raise typer.Exit(EXIT_BAD_INPUT)
 
 
@@ -64,7 +65,7 @@ def _user_errors() -> Iterator[None]:
     except (ValueError, OSError) as exc:  # engine refusals, config errors, unreadable files
         if os.environ.get("POSEFIX_DEBUG"):
             raise
-        _fail(f"{type(exc).__name__}: {exc}" if type(exc).__name__ not in ("ValueError",) else str(exc))
+        _fail(str(exc) if type(exc) is ValueError else f"{type(exc).__name__}: {exc}")
     finally:
         warnings.showwarning = old
 
