@@ -54,23 +54,40 @@ def test_a_wandering_bias_lowers_the_weight_between_edits_not_at_them():
     assert d.detected
     assert 0.3 < d.walk_m2_per_s < 3.0
     mid = edits[:-1] + 30
-    assert np.all(d.weight[mid] < d.weight[edits[:-1]])
+    assert np.mean(d.weight[mid]) < np.mean(d.weight[edits[:-1]])
     assert np.mean(d.weight[mid]) < 0.6
     # the bias estimate follows the walk much better than ignoring it would
     err = np.hypot(*(d.bias_enu_m[:, :2] - walk[:, :2]).T)
     assert np.sqrt(np.mean(err**2)) < 0.5 * np.sqrt(np.mean(np.sum(walk[:, :2] ** 2, axis=1)))
 
 
-def test_a_bias_jump_between_two_edits_is_flagged_in_that_interval_only():
+def test_a_gnss_step_between_two_edits_is_located_and_taken_out():
     t, p = straight()
     rng = np.random.default_rng(3)
     jump = np.where(t[:, None] > 330, np.array([15.0, 0.0, 0.0]), 0.0)
     g = p + jump + rng.normal(0, 2.0, p.shape)
     edits = np.arange(0, 601, 60)
     d = fit(t, p, g, edits, p[edits] + rng.normal(0, 0.3, (len(edits), 3)))
-    inside = (t > 300) & (t < 360)
-    far = (t > 60) & (t < 240)
-    assert np.mean(d.weight[inside]) < 0.5 * np.mean(d.weight[far])
+    assert d.n_steps == 1 and d.detected
+    # the bias follows the step (not a ramp from edit to edit) and only the ramp loses its weight
+    assert np.all(np.abs(d.bias_enu_m[(t > 60) & (t < 300), 0]) < 1.5)
+    assert np.all(np.abs(d.bias_enu_m[(t > 360) & (t < 540), 0] - 15.0) < 1.5)
+    assert np.all(d.weight[(t > 326) & (t < 336)] < 0.2)
+    assert np.mean(d.weight[(t > 60) & (t < 300)]) > 0.9
+
+
+def test_a_pose_that_follows_its_gnss_shows_no_step():
+    from posefix.core.drift import gnss_steps
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(4)
+    k = 600
+    step = np.where(np.arange(k)[:, None] > 300, np.array([15.0, 0.0]), 0.0)
+    a = np.exp(-1.0 / 10.0)
+    follow = lfilter([1 - a], [1, -a], step, axis=0)  # an INS following the GNSS through a 10 s low-pass
+    u = step - follow + rng.normal(0, 2.0, (k, 2))
+    assert len(gnss_steps(u).index) == 0
+    assert len(gnss_steps(step + rng.normal(0, 2.0, (k, 2))).index) == 1
 
 
 def test_outlier_fixes_at_an_edit_do_not_corrupt_its_offset():

@@ -36,12 +36,14 @@ Vertical: only 3-D edits observe the vertical bias; without them the vertical is
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 MEDIAN_EFFICIENCY = 1.2533  # sigma of a sample median / (sigma / sqrt(n)) for Gaussian data
 MIN_TAU_S, MAX_TAU_S = 30.0, 3600.0  # plausible correlation times of a GNSS bias
+STEP_WINDOW_S = 30.0  # window for GNSS steps: the pose's error hardly moves in it, a canyon offset switches in seconds
 
 
 @dataclass(frozen=True)
@@ -72,6 +74,7 @@ class DriftEstimate:
     edit_t_s: np.ndarray
     sigma_b_m: float = 0.0
     tau_s: float = 0.0
+    n_steps: int = 0
 
     def to_json(self) -> dict:
         return {
@@ -80,6 +83,7 @@ class DriftEstimate:
             "walk_m2_per_s": float(self.walk_m2_per_s),
             "sigma_b_m": float(self.sigma_b_m),
             "tau_s": float(self.tau_s),
+            "n_steps": int(self.n_steps),
             "detected": bool(self.detected),
             "n_edits": int(len(self.edit_t_s)),
             "max_bias_m": float(np.max(np.hypot(*self.bias_enu_m[:, :2].T))) if len(self.bias_enu_m) else 0.0,
@@ -223,6 +227,105 @@ def bias_at(kf_t_s, t_e, mean, var, sigma2: float, tau_s: float, q_jump=None):
     return mu, v
 
 
+@dataclass(frozen=True)
+class GnssSteps:
+    """Persistent jumps of the GNSS relative to the locally rigid pose.
+
+    index (j,) keyframe where each jump happens; jump_m (j,2) its size (east, north);
+    level_m (k,2) the cumulative jump level of each keyframe (0 before the first jump);
+    transition (k,) bool keyframes inside a jump's window; sigma_jump_m one-sigma error of a
+    jump's size.
+    """
+
+    index: np.ndarray
+    jump_m: np.ndarray
+    level_m: np.ndarray
+    transition: np.ndarray
+    sigma_jump_m: float
+
+
+def gnss_steps(u_h: np.ndarray, window: int = 30, n_sigma: float = 4.0, min_jump_m: float = 4.0) -> GnssSteps:
+    """Find persistent steps in u = g - p~ (k,2): where the GNSS jumps and the pose does not.
+
+    The reported pose keeps its local shape, so over a window of ``window`` keyframes
+    (30 s by default) its error hardly moves, while an urban-canyon offset switches on or off
+    within seconds.  A step at i is declared where the medians of u over the ``window``
+    keyframes before and after i differ by more than ``n_sigma`` sigmas of that difference
+    (and ``min_jump_m``), at a local maximum, and the level after it persists: the median over
+    the following window agrees with the first (a pose that follows its GNSS through a low-pass
+    shows a transient, not a step).  Medians make outliers and white noise harmless.
+    """
+    k = len(u_h)
+    empty = GnssSteps(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((k, 2)), np.zeros(k, bool), 0.0)
+    W = int(window)
+    if k < 4 * W:
+        return empty
+    ok = np.all(np.isfinite(u_h), axis=1)
+    du = np.diff(u_h[ok], axis=0)
+    if len(du) < 2:
+        return empty
+    sigma = float(1.4826 * np.median(np.abs(du - np.median(du, axis=0))) / np.sqrt(2.0))
+    sigma_diff = MEDIAN_EFFICIENCY * sigma * np.sqrt(2.0 / W)
+    threshold = max(n_sigma * sigma_diff * np.sqrt(2.0), min_jump_m)
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    win = sliding_window_view(u_h, W, axis=0)  # (k-W+1, 2, W): window starting at each row
+    med = np.nanmedian(win, axis=2)  # median of u[i:i+W]
+    # before(i) = median u[i-W:i] = med[i-W]; after(i) = med[i]; later(i) = med[i+W]
+    i = np.arange(W, k - 2 * W + 1)
+    before, after, later = med[i - W], med[i], med[i + W]
+    D = np.hypot(*(after - before).T)
+    persist = np.hypot(*(later - after).T) < 0.5 * D
+    cand = np.flatnonzero((D > threshold) & persist & np.isfinite(D))
+    picked: list[int] = []
+    for c in cand[np.argsort(-D[cand])]:  # strongest first, one per window
+        if all(abs(c - p) >= W for p in picked):
+            picked.append(int(c))
+    picked.sort()
+    if not picked:
+        return dataclasses.replace(empty, sigma_jump_m=float(sigma_diff))
+    idx = i[picked]
+    jumps = (after - before)[picked]
+    level = np.zeros((k, 2))
+    transition = np.zeros(k, dtype=bool)
+    for j, J in zip(idx, jumps):
+        level[j:] += J
+        transition[max(j - W // 2, 0):min(j + W // 2, k)] = True
+    return GnssSteps(idx, jumps, level, transition, float(sigma_diff * np.sqrt(2.0)))
+
+
+def steps_confirmed_by_edits(steps: GnssSteps, edit_kf: np.ndarray, d_h: np.ndarray, noise_var: float, k: int) -> GnssSteps:
+    """Keep only the steps the edits confirm.
+
+    Between two consecutive edits the GNSS bias changes by ``d_b - d_a``; the steps found
+    in that interval must add up to that change within 3 sigmas (edit noise and the steps'
+    own errors), and the interval must show a change at all.  Steps outside the edits, or
+    in an interval they do not explain (a step missed, a wander of the pose taken for one),
+    are dropped, and the Gauss-Markov model covers those intervals as before.
+    """
+    if len(steps.index) == 0 or len(edit_kf) < 2:
+        return dataclasses.replace(steps, index=steps.index[:0], jump_m=steps.jump_m[:0],
+                                   level_m=np.zeros((k, 2)), transition=np.zeros(k, dtype=bool))
+    keep = np.zeros(len(steps.index), dtype=bool)
+    for a, b, da, db in zip(edit_kf[:-1], edit_kf[1:], d_h[:-1], d_h[1:]):
+        inside = (steps.index > a) & (steps.index <= b)
+        n = int(inside.sum())
+        if n == 0:
+            continue
+        change = db - da
+        tol = 3.0 * np.sqrt(2.0 * (2.0 * noise_var + n * steps.sigma_jump_m**2))
+        if np.hypot(*(steps.jump_m[inside].sum(axis=0) - change)) < tol and np.hypot(*change) > tol:
+            keep |= inside
+    level = np.zeros((k, 2))
+    transition = np.zeros(k, dtype=bool)
+    W = int(np.ceil(np.count_nonzero(steps.transition) / max(len(steps.index), 1)))
+    for j, J in zip(steps.index[keep], steps.jump_m[keep]):
+        level[j:] += J
+        transition[max(j - W // 2, 0):min(j + W // 2, k)] = True
+    # levels are relative: anchor them so the first edit sees level 0 (the GM part carries the rest)
+    return GnssSteps(steps.index[keep], steps.jump_m[keep], level, transition, steps.sigma_jump_m)
+
+
 def estimate_drift(
     kf_t_s: np.ndarray,
     p_rep_m: np.ndarray,
@@ -261,6 +364,12 @@ def estimate_drift(
     n_win = min(2 * window + 1, k)
     noise_h = np.full(len(t_e), sigma_u_h_m**2 + (MEDIAN_EFFICIENCY * sigma_w_h_m) ** 2 / n_win)
     noise_v = np.full(len(t_e), sigma_u_v_m**2 + (MEDIAN_EFFICIENCY * sigma_w_v_m) ** 2 / n_win)
+    # persistent GNSS steps (urban-canyon offsets switching on and off) are taken out of the
+    # offsets first; the Gauss-Markov model then describes what is left
+    dt_kf = float(np.median(np.diff(kf_t_s))) if k > 1 else 1.0
+    steps = gnss_steps((g_m - p_rep_m)[:, :2], window=max(int(round(STEP_WINDOW_S / max(dt_kf, 1e-9))), 5))
+    steps = steps_confirmed_by_edits(steps, edit_kf, d[:, :2], noise_h[0], k)
+    d[:, :2] -= steps.level_m[edit_kf]
     if frozen is not None:
         sigma2, tau = float(frozen[0]), float(frozen[1])
         q = 2.0 * sigma2 / tau
@@ -298,6 +407,19 @@ def estimate_drift(
         # unbiased as far as the edits can tell, and is left exactly as configured
         bias = np.zeros((k, 3))
         var_h = np.zeros(k)
+    if len(steps.index):
+        # add the steps back: the bias is the step level plus the smooth part; each step
+        # between a keyframe and its nearest edit adds its size's uncertainty, and keyframes
+        # inside a step's window (the ramp) keep almost no location weight
+        detected = True
+        bias[:, :2] += steps.level_m
+        seg = np.searchsorted(steps.index, np.arange(k), side="right")
+        seg_e = seg[edit_kf]
+        n_between = np.min(np.abs(seg[:, None] - seg_e[None, :]), axis=1)
+        var_h += n_between * steps.sigma_jump_m**2
+        big = np.max(np.hypot(*steps.jump_m.T)) ** 2
+        var_h = np.where(steps.transition, var_h + big, var_h)
+        d[:, :2] += steps.level_m[edit_kf]
     weight = sigma_w_h_m**2 / (sigma_w_h_m**2 + var_h)
     return DriftEstimate(
         offset_enu_m=offset,
@@ -311,4 +433,5 @@ def estimate_drift(
         weight=weight,
         edit_offsets_enu_m=d,
         edit_t_s=t_e,
+        n_steps=int(len(steps.index)),
     )
