@@ -198,3 +198,11 @@ def test_help_explains_options_with_units():
     assert "--json" in in_process("evaluate", "--help").stdout
     assert "--origin" in in_process("convert", "--help").stdout
     assert "correct" in ok("--help").stdout  # the installed entry point lists the command
+
+
+def test_bad_config_is_one_line(simulated, tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[location]\nsigma_h_m = 'three'\n")
+    res = in_process("correct", simulated / "run.csv", "-e", simulated / "edits.json", "-o", tmp_path / "o.csv", "--config", cfg)
+    assert_one_line_error(res, "bad.toml", "sigma_h_m")
+    assert not (tmp_path / "o.csv").exists()
