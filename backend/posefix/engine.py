@@ -92,10 +92,14 @@ class Correction:
     kept_rows: np.ndarray  # rows of the input present in ``run`` (deleted keyframes removed)
     flags: list[Refusal] = field(default_factory=list)
     propagation_time_s: float = 0.0
+    x: np.ndarray | None = None  # the keyframe state solved for (for warm starts)
+    active: np.ndarray | None = None
+    terms: T.Terms | None = None
 
     @property
     def solution(self) -> Solution:
-        return Solution(self.keyframes, self.solver, self.drift, self._x, self._active, self.flags)
+        """The keyframe-level solution behind this correction (a warm start for the next solve)."""
+        return Solution(self.keyframes, self.solver, self.drift, self.x, self.active, self.flags, self.terms)
 
 
 @dataclass(frozen=True)
@@ -437,13 +441,10 @@ class Problem:
                 flagged = np.zeros(n, dtype=np.int8)
                 flagged[deleted_rows] = 1
                 out = dataclasses.replace(out, extra={**out.extra, "flagged": flagged})
-        corr = Correction(
+        return Correction(
             run=out, keyframes=kfs, solver=sol.solver, drift=sol.drift, kept_rows=kept, flags=sol.flags,
-            propagation_time_s=time.perf_counter() - started,
+            propagation_time_s=time.perf_counter() - started, x=sol.x, active=sol.active, terms=sol.terms,
         )
-        object.__setattr__(corr, "_x", sol.x)
-        object.__setattr__(corr, "_active", sol.active)
-        return corr
 
 
 def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:

@@ -189,3 +189,14 @@ def test_time_propagation_and_metre_keyframes_are_honoured():
     assert np.median(gaps) == pytest.approx(25.0, abs=1.0)
     assert out.keyframes.edited.sum() == 1 and 300 in out.keyframes.index
     assert dataclasses.asdict(out.solver)["status"] == "converged"
+
+
+def test_a_correction_warm_starts_the_next_solve():
+    run, _ = hand_run(k=1201)
+    problem = prepare(run)
+    first = problem.full_run(problem.solve(EditSet(moves=[move(run, 300, 3.0)])))
+    both = EditSet(moves=[move(run, 300, 3.0), move(run, 900, -2.0)])
+    warm = problem.solve(both, warm_start=first)
+    cold = problem.solve(both)
+    assert warm.solver.iterations <= cold.solver.iterations
+    assert abs(warm.solver.cost - cold.solver.cost) <= 1e-6 * cold.solver.cost
