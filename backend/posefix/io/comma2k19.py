@@ -8,7 +8,8 @@ A segment folder holds numpy arrays saved without extension. posefix reads:
   forward axis follows ``frame_velocities``, its third axis points down). The body frame
   posefix uses is [forward, left, up] = diag(1, -1, -1) device, so
   ``R_body->ENU = R_ECEF->ENU(lat, lon) · R_device->ECEF · diag(1, -1, -1)``.
-  This 20 Hz fused INS/GNSS/vision pose is comma's own estimate, not RTK truth.
+  This 20 Hz fused INS/GNSS/vision pose is comma's own estimate, not RTK truth. The "body"
+  is therefore the camera, not the car: its pitch includes the mount's (~4° down here).
 - the raw u-blox fix ``processed_log/GNSS/live_gnss_ublox`` (10 Hz: lat, lon, speed, UTC ms,
   altitude, bearing) as the ``gnss_*`` columns, linearly interpolated in time at the pose
   times (held at the first/last fix outside its span; NaN where the gap to the nearest fix
