@@ -6,6 +6,7 @@ import { renderTasksAdmin } from "./admin";
 import { renderOperators } from "./operators";
 import { renderReview, renderReviewQueue } from "./review";
 import { renderAssignment, renderWork } from "./work";
+import "./tasks.css";
 
 export function tasksNav(u: UserPublic | null): HTMLElement[] {
   if (!u) return [];

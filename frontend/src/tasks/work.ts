@@ -8,7 +8,7 @@ import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/app";
 import { fmtTime, h } from "../ui/dom";
 import { renderEditor } from "../ui/editor/view";
-import { type Assignment, type OperatorStats, tasksApi } from "./api";
+import { type OperatorStats, tasksApi } from "./api";
 import { fmtRemaining, fmtReward, leaseUrgent, remainingAt } from "./format";
 
 const num = (v: number | null, digits = 2, unit = "") => (v === null || v === undefined ? "—" : `${v.toFixed(digits)}${unit}`);
@@ -25,7 +25,7 @@ export function statsCard(s: OperatorStats): HTMLElement {
   );
 }
 
-export function renderWork(main: HTMLElement, ctx: AppContext): () => void {
+export function renderWork(main: HTMLElement, ctx: AppContext): void {
   const out = h("div", { "aria-live": "polite", "data-testid": "next-result" });
   const leases = h("div", {}, h("p", {}, "Loading…"));
   const stats = h("div");
@@ -39,13 +39,13 @@ export function renderWork(main: HTMLElement, ctx: AppContext): () => void {
         ctx.navigate(`#/tasks/work/${r.assignment.id}`);
         return;
       }
-      out.replaceChildren(
+      out.replaceChildren(h("div", {},
         h("p", { role: "status", "data-testid": "next-message" }, r.message),
         r.ineligible.length
           ? h("ul", { "data-testid": "ineligible" }, ...r.ineligible.map((t) =>
               h("li", {}, h("strong", {}, t.title), ": ", t.reasons.join("; "))))
           : null,
-      );
+      ));
     } catch (err) {
       out.replaceChildren(h("p", { class: "error", role: "alert" }, describeError(err)));
     } finally {
