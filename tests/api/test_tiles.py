@@ -47,14 +47,6 @@ def make_app(settings: Settings) -> FastAPI:
     return app
 
 
-def add_user(app: FastAPI, username: str, password: str, role: str) -> None:
-    from posefix.users.models import Role
-    from posefix.users.service import create_user
-
-    with app.state.db.transaction() as session:
-        create_user(session, username, password, Role(role))
-
-
 def login(app: FastAPI, username: str, password: str) -> TestClient:
     client = TestClient(app, headers={"Origin": ORIGIN})
     response = client.post("/api/v1/auth/login", json={"username": username, "password": password})
@@ -133,20 +125,61 @@ def _database_urls() -> list[str]:
     return ["sqlite"] + (["postgresql"] if pg_url() else [])
 
 
-@pytest.fixture(params=_database_urls())
-def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+def _admin_dsn(url: str) -> str:
+    return make_url(url).set(drivername="postgresql", database="postgres").render_as_string(hide_password=False)
+
+
+def _seed(url: str) -> None:
+    """Migrate an empty database and add the two test accounts (argon2 hashing is slow, so once)."""
+    migrate(url)
+    db = Database(url)
+    try:
+        from posefix.users.models import Role
+        from posefix.users.service import create_user
+
+        with db.transaction() as session:
+            create_user(session, "root", "root-password-1", Role.admin)
+            create_user(session, "olga", "olga-password-1", Role.operator)
+    finally:
+        db.dispose()
+
+
+@pytest.fixture(scope="module", params=_database_urls())
+def template_database(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
+    """A migrated, seeded database that each test copies: (backend, sqlite path or PG name)."""
     if request.param == "sqlite":
-        yield f"sqlite:///{tmp_path / 'posefix.sqlite'}"
+        path = tmp_path_factory.mktemp("template") / "posefix.sqlite"
+        _seed(f"sqlite:///{path}")
+        yield "sqlite", str(path)
         return
-    base = make_url(pg_url())
-    name = f"posefix_tiles_{uuid.uuid4().hex[:10]}"
-    admin_dsn = base.set(drivername="postgresql", database="postgres").render_as_string(hide_password=False)
-    with psycopg.connect(admin_dsn, autocommit=True) as conn:
+    name = f"posefix_tiles_tmpl_{uuid.uuid4().hex[:8]}"
+    with psycopg.connect(_admin_dsn(pg_url()), autocommit=True) as conn:
         conn.execute(f'CREATE DATABASE "{name}"')
     try:
-        yield base.set(database=name).render_as_string(hide_password=False)
+        _seed(make_url(pg_url()).set(database=name).render_as_string(hide_password=False))
+        yield "postgresql", name
     finally:
-        with psycopg.connect(admin_dsn, autocommit=True) as conn:
+        with psycopg.connect(_admin_dsn(pg_url()), autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+@pytest.fixture
+def database_url(template_database: tuple[str, str], tmp_path: Path) -> Iterator[str]:
+    """A fresh copy of the template for one test: a file copy, or CREATE DATABASE ... TEMPLATE."""
+    backend, template = template_database
+    if backend == "sqlite":
+        copy = tmp_path / "posefix.sqlite"
+        with sqlite3.connect(template) as source, sqlite3.connect(copy) as target:
+            source.backup(target)
+        yield f"sqlite:///{copy}"
+        return
+    name = f"posefix_tiles_{uuid.uuid4().hex[:10]}"
+    with psycopg.connect(_admin_dsn(pg_url()), autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{name}" TEMPLATE "{template}"')
+    try:
+        yield make_url(pg_url()).set(database=name).render_as_string(hide_password=False)
+    finally:
+        with psycopg.connect(_admin_dsn(pg_url()), autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
 
 
@@ -171,11 +204,8 @@ def app(database_url: str, data_dir: Path, monkeypatch: pytest.MonkeyPatch) -> I
     monkeypatch.setenv("POSEFIX_TILE_CACHE_DIR", str(data_dir / "tile-cache"))
     tile_settings.cache_clear()
     forget_cached_sources()
-    migrate(database_url)
     settings = Settings(environment="test", database_url=database_url, data_dir=data_dir, log_json=False)
     application = make_app(settings)
-    add_user(application, "root", "root-password-1", "admin")
-    add_user(application, "olga", "olga-password-1", "operator")
     yield application
     application.state.db.dispose()
     tile_settings.cache_clear()
