@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from tests.e2e.serverkit import ARTIFACTS, PASSWORD
@@ -84,10 +85,12 @@ def drag(page, start: tuple[float, float], end: tuple[float, float], steps: int 
 
 
 def shot(page, name: str, docs: bool = False) -> Path:
+    """Screenshot into test-artifacts/; the README's pictures (docs=True) are refreshed in
+    docs/img/ only when POSEFIX_UPDATE_DOCS_IMG=1, so a test run leaves the tree clean."""
     ARTIFACTS.mkdir(exist_ok=True)
     path = ARTIFACTS / f"{name}.png"
     page.screenshot(path=str(path))
-    if docs:
+    if docs and os.environ.get("POSEFIX_UPDATE_DOCS_IMG") == "1":
         DOCS_IMG.mkdir(parents=True, exist_ok=True)
         (DOCS_IMG / f"{name}.png").write_bytes(path.read_bytes())
     return path
