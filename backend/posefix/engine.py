@@ -27,7 +27,7 @@ from posefix.core import geodesy
 from posefix.core import rotations as rot
 from posefix.core import terms as T
 from posefix.core.config import ConfigError, CorrectionConfig
-from posefix.core.drift import DriftEstimate, estimate_drift, no_drift
+from posefix.core.drift import DriftEstimate, GnssSteps, estimate_drift, gnss_steps, no_drift, step_window
 from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes, select_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
@@ -141,7 +141,7 @@ class Problem:
         self._image_mask = image_mask
         self.keyframe_index = self.keyframes_for(np.zeros(0, dtype=np.int64))
         self._local_to_anchor: dict[bytes, np.ndarray] = {}
-        self._static: dict[bytes, T.Terms] = {}
+        self._static: dict[bytes, object] = {}
 
     # ----------------------------------------------------------------- keyframes and frames
 
@@ -195,6 +195,13 @@ class Problem:
             self._static.clear()
         self._static[key] = terms
         return terms
+
+    def _gnss_steps(self, rows: np.ndarray, t_s: np.ndarray, p_rep: np.ndarray, g: np.ndarray) -> GnssSteps:
+        """GNSS steps against the pose on these keyframes (cached: they depend on the run only)."""
+        key = b"steps" + rows.tobytes()
+        if key not in self._static:
+            self._static[key] = gnss_steps((g - p_rep)[:, :2], window=step_window(t_s))
+        return self._static[key]
 
     def _location_measurements(self, rows: np.ndarray) -> np.ndarray:
         return self.p_enu_m[rows] if self.g_enu_m is None else self.g_enu_m[rows]
@@ -251,7 +258,7 @@ class Problem:
                 t_act, p_rep, np.where(has_fix[:, None], g, np.nan), e_act, edit_c_m, edit_has_alt,
                 lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
                 cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
-                frozen=frozen,
+                frozen=frozen, steps=self._gnss_steps(act_rows, t_act, p_rep, np.where(has_fix[:, None], g, np.nan)),
             )
         else:
             drift = no_drift(len(act_rows))
@@ -313,7 +320,8 @@ class Problem:
         fixed[-1] = hi > b
         xs = x0.reshape(-1, 6)
         cfg = self.cfg.solver
-        x_sub, res = solve_banded(sub, xs[lo:hi + 1].ravel(), cfg.max_iterations, cfg.ftol, fixed=fixed)
+        # a local answer is a preview of a few metres' change: 1e-8 of the cost is far below a centimetre
+        x_sub, res = solve_banded(sub, xs[lo:hi + 1].ravel(), cfg.max_iterations, max(cfg.ftol, 1e-8), fixed=fixed)
         x = xs.copy()
         x[lo:hi + 1] = x_sub.reshape(-1, 6)
         x = x.ravel()

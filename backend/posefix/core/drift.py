@@ -294,6 +294,12 @@ def gnss_steps(u_h: np.ndarray, window: int = 30, n_sigma: float = 4.0, min_jump
     return GnssSteps(idx, jumps, level, transition, float(sigma_diff * np.sqrt(2.0)))
 
 
+def step_window(kf_t_s: np.ndarray) -> int:
+    """Keyframes in ``STEP_WINDOW_S`` at the run's typical keyframe spacing (at least 5)."""
+    dt = float(np.median(np.diff(kf_t_s))) if len(kf_t_s) > 1 else 1.0
+    return max(int(round(STEP_WINDOW_S / max(dt, 1e-9))), 5)
+
+
 def steps_confirmed_by_edits(steps: GnssSteps, edit_kf: np.ndarray, d_h: np.ndarray, noise_var: float, k: int) -> GnssSteps:
     """Keep only the steps the edits confirm.
 
@@ -342,6 +348,7 @@ def estimate_drift(
     min_edits_for_estimate: int = 3,
     window: int = 5,
     frozen: tuple[float, float, bool] | None = None,
+    steps: GnssSteps | None = None,
 ) -> DriftEstimate:
     """Fit the bias model to the edits; see the module docstring.
 
@@ -349,7 +356,8 @@ def estimate_drift(
     (NaN where none), edit_kf (m,) keyframe of each edit, edit_c_m (m,3) edit targets
     (vertical ignored where ``edit_has_alt`` is False).  ``frozen`` = (sigma_b^2, tau_s,
     detected) holds the model's parameters (a live drag re-uses those of the last solve so
-    one more edit changes the bias only around it).
+    one more edit changes the bias only around it).  ``steps`` passes the result of
+    ``gnss_steps`` when the caller keeps it between solves (it depends on the run only).
     """
     k = len(kf_t_s)
     if len(edit_kf) == 0:
@@ -366,8 +374,8 @@ def estimate_drift(
     noise_v = np.full(len(t_e), sigma_u_v_m**2 + (MEDIAN_EFFICIENCY * sigma_w_v_m) ** 2 / n_win)
     # persistent GNSS steps (urban-canyon offsets switching on and off) are taken out of the
     # offsets first; the Gauss-Markov model then describes what is left
-    dt_kf = float(np.median(np.diff(kf_t_s))) if k > 1 else 1.0
-    steps = gnss_steps((g_m - p_rep_m)[:, :2], window=max(int(round(STEP_WINDOW_S / max(dt_kf, 1e-9))), 5))
+    if steps is None:
+        steps = gnss_steps((g_m - p_rep_m)[:, :2], window=step_window(kf_t_s))
     steps = steps_confirmed_by_edits(steps, edit_kf, d[:, :2], noise_h[0], k)
     d[:, :2] -= steps.level_m[edit_kf]
     if frozen is not None:
