@@ -31,12 +31,25 @@ schema = (
 )
 
 
-@pytest.fixture
-def fuzz_headers(app, client, users):
-    upload(client, users["client"], drive_csv(120))  # a run exists, so small ids hit real rows
-    FUZZ_APP.state.settings = app.state.settings
+@pytest.fixture(scope="module")
+def fuzz_headers(db_url, tmp_path_factory):
+    """One database state for the whole module: the fuzzer only looks for 5xx, not for exact results."""
+    from fastapi.testclient import TestClient
+
+    from tests.conftest import _empty_tables, add_user, direct_token
+
+    _empty_tables(db_url)
+    settings = Settings(environment="test", database_url=db_url, data_dir=tmp_path_factory.mktemp("fuzz") / "var",
+                        log_level="ERROR")
+    app = create_app(settings)
+    admin = direct_token(app, add_user(app, "admin", "admin"))
+    owner = direct_token(app, add_user(app, "client", "client"))
+    with TestClient(app) as client:
+        upload(client, owner, drive_csv(120))  # a run exists, so small ids hit real rows
+    FUZZ_APP.state.settings = settings
     FUZZ_APP.state.db = app.state.db
-    return users["admin"]
+    yield admin
+    _empty_tables(db_url)
 
 
 @pytest.mark.parametrize("db_backend", ["fuzz"])
