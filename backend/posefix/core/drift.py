@@ -244,7 +244,7 @@ class GnssSteps:
     sigma_jump_m: float
 
 
-def gnss_steps(u_h: np.ndarray, window: int = 30, n_sigma: float = 4.0, min_jump_m: float = 4.0) -> GnssSteps:
+def gnss_steps(u_h: np.ndarray, window: int = 30, n_sigma: float = 4.0, min_jump_m: float = 5.0) -> GnssSteps:
     """Find persistent steps in u = g - p~ (k,2): where the GNSS jumps and the pose does not.
 
     The reported pose keeps its local shape, so over a window of ``window`` keyframes
@@ -332,6 +332,21 @@ def steps_confirmed_by_edits(steps: GnssSteps, edit_kf: np.ndarray, d_h: np.ndar
     return GnssSteps(steps.index[keep], steps.jump_m[keep], level, transition, steps.sigma_jump_m)
 
 
+def suspect_intervals(found: GnssSteps, kept: GnssSteps, edit_kf: np.ndarray, k: int) -> np.ndarray:
+    """(k,) extra variance, m^2: the squared size of any unconfirmed step over the stretch
+    between the edits around it (from the run's start or to its end beyond the edits)."""
+    extra = np.zeros(k)
+    kept_set = set(int(i) for i in kept.index)
+    bounds = np.concatenate([[0], np.sort(np.asarray(edit_kf, dtype=np.int64)), [k]])
+    for j, J in zip(found.index, found.jump_m):
+        if int(j) in kept_set:
+            continue
+        b = np.searchsorted(bounds, j, side="right")
+        lo, hi = bounds[b - 1], bounds[min(b, len(bounds) - 1)]
+        extra[lo:hi] = np.maximum(extra[lo:hi], 9.0 * float(J @ J))
+    return extra
+
+
 def estimate_drift(
     kf_t_s: np.ndarray,
     p_rep_m: np.ndarray,
@@ -376,8 +391,10 @@ def estimate_drift(
     # offsets first; the Gauss-Markov model then describes what is left
     if steps is None:
         steps = gnss_steps((g_m - p_rep_m)[:, :2], window=step_window(kf_t_s))
+    all_steps = steps
     steps = steps_confirmed_by_edits(steps, edit_kf, d[:, :2], noise_h[0], k)
     d[:, :2] -= steps.level_m[edit_kf]
+    suspect = suspect_intervals(all_steps, steps, edit_kf, k)
     if frozen is not None:
         sigma2, tau = float(frozen[0]), float(frozen[1])
         q = 2.0 * sigma2 / tau
@@ -428,6 +445,11 @@ def estimate_drift(
         big = np.max(np.hypot(*steps.jump_m.T)) ** 2
         var_h = np.where(steps.transition, var_h + big, var_h)
         d[:, :2] += steps.level_m[edit_kf]
+    # a step the edits could not confirm still says the GNSS jumped there: between the two
+    # edits around it (or beyond the last one) the fixes are not trusted to more than the jump
+    var_h = var_h + suspect
+    if np.any(suspect > 0):
+        detected = True
     weight = sigma_w_h_m**2 / (sigma_w_h_m**2 + var_h)
     return DriftEstimate(
         offset_enu_m=offset,
