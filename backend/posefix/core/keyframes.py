@@ -19,7 +19,8 @@ class KeyframeSet:
     """Keyframes of a run, reported and (after a solve) corrected.
 
     index : (k,) int rows into the run.    t_s : (k,) seconds.
-    p_enu_m, q_wxyz : (k, 3), (k, 4) corrected poses (body-to-ENU quaternion).
+    p_enu_m, q_wxyz : (k, 3), (k, 4) corrected poses in the run's local frame (ENU anchored at
+        the first sample; the quaternion rotates body vectors into that frame).
     reported_p_enu_m, reported_q_wxyz : the reported poses at the same rows.
     edited, deleted : (k,) bool.
     """
