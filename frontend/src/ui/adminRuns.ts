@@ -52,11 +52,14 @@ export function renderAdminRuns(main: HTMLElement, _ctx: AppContext): () => void
       (r) =>
         list.replaceChildren(
           h("table", { class: "table", "data-testid": "admin-runs-table" },
-            h("thead", {}, h("tr", {}, h("th", {}, "Run"), h("th", {}, "Status"), h("th", {}, "Created"), h("th", {}, ""))),
+            h("thead", {}, h("tr", {}, ...["Run", "Status", "Revision", "Keyframes", "Images", "Created", ""].map((t) => h("th", {}, t)))),
             h("tbody", {}, ...r.items.map((run) =>
               h("tr", {},
                 h("td", {}, h("a", { href: `#/runs/${encodeURIComponent(String(run.id))}` }, run.name)),
                 h("td", {}, h("span", { class: `status status-${run.status}` }, String(run.status))),
+                h("td", {}, run.head_revision > run.revision ? `${run.revision} (computing ${run.head_revision})` : String(run.revision)),
+                h("td", {}, String(run.n_keyframes)),
+                h("td", {}, String(run.n_images)),
                 h("td", {}, fmtTime(run.created_at)),
                 h("td", {}, h("a", { href: `/api/v1/runs/${encodeURIComponent(String(run.id))}/export?format=csv` }, "Export CSV")),
               ),

@@ -219,9 +219,10 @@ export class EditorController {
   /** After a conflict: load the latest revision and re-apply the unsaved edits that still pass. */
   async reloadAndReapply(): Promise<void> {
     const edits = currentEdits(this.store.get());
+    const want = this.store.get().conflict?.currentRevision ?? null;
     let doc: RunDoc;
     try {
-      doc = await api.loadDoc(this.runId);
+      doc = await this.loadAtLeast(want);
     } catch (err) {
       this.store.update((s) => setError(s, `Reload failed: ${describeError(err)}`));
       return;
@@ -237,6 +238,20 @@ export class EditorController {
         ? `Reloaded revision ${doc.revision}. ${check.refusals.length} edits no longer pass the rules and were dropped: ${check.refusals.map((r) => r.message).join(" ")}`
         : `Reloaded revision ${doc.revision} and re-applied ${editCount(kept)} unsaved edits.`,
     );
+  }
+
+  /**
+   * Load the run, waiting (up to a minute) while the revision that caused a conflict is
+   * still being computed by the worker, so re-applied edits land on top of it.
+   */
+  private async loadAtLeast(revision: number | null): Promise<RunDoc> {
+    const t0 = Date.now();
+    for (;;) {
+      const doc = await api.loadDoc(this.runId);
+      if (revision === null || doc.revision >= revision || Date.now() - t0 > JOB_TIMEOUT_MS / 2) return doc;
+      this.onNotice(`Waiting for revision ${revision} to be computed…`);
+      await new Promise((r) => setTimeout(r, JOB_POLL_MS * 2));
+    }
   }
 
   /** After a conflict: drop the unsaved edits and load the latest revision. */
