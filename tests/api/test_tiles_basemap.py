@@ -132,3 +132,20 @@ class TestStyleLayers:
         last_casing = max(i for i, name in enumerate(ids) if name.endswith("-casing"))
         first_fill = min(i for i, name in enumerate(ids) if name.startswith("hel-road-") and not name.endswith("-casing"))
         assert last_casing < first_fill
+
+
+class TestBasemapCommand:
+    def test_posefix_basemap_build(self, tmp_path: Path) -> None:
+        from typer.testing import CliRunner
+
+        from posefix.cli import _register, app
+
+        _register()
+        runner = CliRunner()
+        out = tmp_path / "city.pmtiles"
+        result = runner.invoke(app, ["basemap", "build", str(HELSINKI_OSM), str(out), "--max-zoom", "14"])
+        assert result.exit_code == 0, result.output
+        assert "zooms 12-14" in result.output and out.is_file()
+        missing = runner.invoke(app, ["basemap", "build", str(tmp_path / "none.osm.pbf"), str(tmp_path / "x.pmtiles")])
+        assert missing.exit_code == 2 and "none.osm.pbf" in missing.output
+        assert not (tmp_path / "x.pmtiles").exists()
