@@ -17,6 +17,7 @@ import posefix.edits.models  # noqa: F401
 import posefix.jobs.models  # noqa: F401
 import posefix.tiles.models  # noqa: F401
 import posefix.tasks.models  # noqa: F401
+import posefix.maps.models  # noqa: F401
 
 config = context.config
 target_metadata = Base.metadata

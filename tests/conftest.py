@@ -79,7 +79,7 @@ def _empty_tables(url: str) -> None:
     import posefix.users.models  # noqa: F401
     from posefix.db import Base, Database
 
-    for optional in ("posefix.tiles.models", "posefix.tasks.models"):
+    for optional in ("posefix.tiles.models", "posefix.tasks.models", "posefix.maps.models"):
         try:
             __import__(optional)
         except ModuleNotFoundError:

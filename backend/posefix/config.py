@@ -67,6 +67,8 @@ class Settings(BaseSettings):
     line_max_points: int = 5000
     # Engine configuration file (TOML); empty: engine defaults.
     engine_config: Path | None = None
+    # OpenStreetMap extract (.osm.pbf) for map-matching suggestions; empty: data/osm/helsinki.osm.pbf.
+    osm_extract: Path | None = None
 
     @model_validator(mode="after")
     def _refuse_default_secret(self) -> Settings:

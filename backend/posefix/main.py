@@ -142,6 +142,7 @@ def api_router() -> APIRouter:
     router.include_router(jobs_router)
     _include_optional(router, "posefix.tiles.endpoints")
     _include_optional(router, "posefix.tasks.endpoints")
+    _include_optional(router, "posefix.maps.endpoints")
     return router
 
 

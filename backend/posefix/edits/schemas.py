@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 import datetime as dt
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -11,6 +11,7 @@ class MoveIn(BaseModel):
     lon: float = Field(ge=-180, le=180)
     lat: float = Field(ge=-90, le=90)
     alt: float | None = Field(default=None, ge=-1000, le=100000, description="metres; omit for a 2-D move")
+    kind: Literal["move", "suggestion"] = Field(default="move", description="suggestion: accepted from map matching (stored as such)")
 
 
 class PreviewRequest(BaseModel):

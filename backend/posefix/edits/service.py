@@ -159,9 +159,9 @@ def submit(
     except IntegrityError:
         raise _stale(session, run, base) from None
     edits_repo.insert_edits(session, [
-        {"batch_id": batch.id, "run_id": run.id, "k": m.index, "kind": "move", "lon": m.lon, "lat": m.lat, "alt": m.alt,
+        {"batch_id": batch.id, "run_id": run.id, "k": m.index, "kind": src.kind, "lon": m.lon, "lat": m.lat, "alt": m.alt,
          "author_id": principal.user_id, "task_id": task_id}
-        for m in batch_moves
+        for m, src in zip(batch_moves, moves)
     ] + [
         {"batch_id": batch.id, "run_id": run.id, "k": int(d), "kind": "delete", "lon": None, "lat": None, "alt": None,
          "author_id": principal.user_id, "task_id": task_id}

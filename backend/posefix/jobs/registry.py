@@ -58,7 +58,7 @@ def load_handlers() -> None:
     """Import the modules that register handlers (domains owned by several people)."""
     import importlib
 
-    for module in ("posefix.edits.tasks", "posefix.jobs.builtin", "posefix.tasks.jobs"):
+    for module in ("posefix.edits.tasks", "posefix.jobs.builtin", "posefix.tasks.jobs", "posefix.maps.jobs"):
         try:
             importlib.import_module(module)
         except ModuleNotFoundError as exc:

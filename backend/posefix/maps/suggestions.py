@@ -1,0 +1,74 @@
+"""Map-matching suggestions for a pose run's keyframes (OpenStreetMap drivable area).
+
+The keyframes of a ready revision (their corrected positions, and the heading stored with
+them) are matched by :func:`posefix.mapmatch.suggest_for_run`; the answer is computed inline
+(about 0.5 s for the demo runs: reading the extract's ways around the run dominates).
+An accepted suggestion is submitted through the normal edits path as a move of kind
+``suggestion``; see docs/maps-api.md for how it is weighted.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from posefix.config import Settings
+from posefix.core.rules import EditRules, adjustable_mask
+from posefix.errors import NotFound, Unprocessable
+from posefix.runs import storage
+from posefix.runs.models import Run
+
+DEFAULT_OSM = Path(__file__).resolve().parents[3] / "data" / "osm" / "helsinki.osm.pbf"
+
+
+def osm_path(settings: Settings) -> Path:
+    """The extract to match against: ``POSEFIX_OSM_EXTRACT``, else the repository's Helsinki extract."""
+    candidates = [settings.osm_extract] if settings.osm_extract else [DEFAULT_OSM, Path("data/osm/helsinki.osm.pbf").resolve()]
+    for p in candidates:
+        if p is not None and Path(p).is_file():
+            return Path(p)
+    raise NotFound(f"no OpenStreetMap extract at {candidates[0]}; set POSEFIX_OSM_EXTRACT to an .osm.pbf file",
+                   code="osm_not_found")
+
+
+def quaternion_from_heading(heading_deg_cw_from_north: np.ndarray) -> np.ndarray:
+    """(n, 4) w,x,y,z yaw-only body->ENU quaternions for headings (deg clockwise from north)."""
+    yaw = np.radians(90.0 - np.asarray(heading_deg_cw_from_north, dtype=float))  # CCW from east
+    q = np.zeros((yaw.size, 4))
+    q[:, 0], q[:, 3] = np.cos(yaw / 2.0), np.sin(yaw / 2.0)
+    return q
+
+
+def suggest(session: Session, settings: Settings, run: Run, revision: int | None, cell_m: float) -> dict[str, Any]:
+    from posefix.edits.service import ready
+    from posefix.mapmatch import suggest_for_run
+
+    t0 = time.perf_counter()
+    number = run.revision if revision is None else revision
+    rev = ready(session, run, number)
+    kf = storage.read_keyframes(storage.FileStore(settings.files_dir), rev.keyframes_file)
+    k = int(kf.lon_deg.size)
+    if k < 2:
+        raise Unprocessable(f"run {run.id} has {k} keyframe(s); matching needs two or more", code="too_few_keyframes")
+    osm = osm_path(settings)
+    try:
+        sug = suggest_for_run(kf.lon_deg, kf.lat_deg, quaternion_from_heading(kf.heading_deg), osm, cell_m=cell_m)
+    except ValueError as exc:
+        # e.g. no drivable way near the run: the extract does not cover it.
+        raise Unprocessable(f"run {run.id}: {exc}", code="no_match", extra={"file": osm.name}) from None
+    deleted = {int(d) for d in (rev.edit_set or {}).get("deleted", [])}
+    adjustable = adjustable_mask(k, EditRules.from_json(run.rules))
+    items = [
+        {"index": i, "lon": round(float(sug.lonlat_deg[i, 0]), 8), "lat": round(float(sug.lonlat_deg[i, 1]), 8),
+         "moved_m": round(float(sug.moved_m[i]), 3), "off_road": bool(sug.off_road[i]),
+         "sigma_m": round(float(sug.sigma_m[i]), 3), "adjustable": bool(adjustable[i]) and i not in deleted}
+        for i in range(k)
+    ]
+    return {
+        "run_id": run.id, "revision": number, "osm": osm.name, "n_vertices": int(sug.n_vertices),
+        "time_ms": round((time.perf_counter() - t0) * 1000, 1), "off_road": int(np.sum(sug.off_road)), "items": items,
+    }
