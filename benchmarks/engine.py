@@ -316,6 +316,7 @@ def bench_accuracy(spacings, regimes, duration_s: float, seed: int = 11, plot_di
 
 
 def plot_run(path: Path, problem, sim, truth, p_pf, p_naive, p_gt):
+    """Map of the whole drive, a zoom where the input is worst, and each method's error over time."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -323,23 +324,33 @@ def plot_run(path: Path, problem, sim, truth, p_pf, p_naive, p_gt):
 
     path.parent.mkdir(parents=True, exist_ok=True)
     t = sim.run.t_s - sim.run.t_s[0]
-    fig, (ax_map, ax_err) = plt.subplots(1, 2, figsize=(14, 6), gridspec_kw={"width_ratios": [1.1, 1]})
-    step = 5
-    if problem.g_enu_m is not None:
-        ax_map.plot(problem.g_enu_m[::50, 0], problem.g_enu_m[::50, 1], ".", ms=1.5, color="0.7", label="raw GNSS")
-    ax_map.plot(problem.p_enu_m[::step, 0], problem.p_enu_m[::step, 1], color="tab:red", lw=1, label="input pose")
-    ax_map.plot(truth[::step, 0], truth[::step, 1], color="k", lw=2.2, label="truth")
-    ax_map.plot(p_pf[::step, 0], p_pf[::step, 1], color="tab:blue", lw=1, label="posefix")
+    fig, (ax_map, ax_zoom, ax_err) = plt.subplots(1, 3, figsize=(18, 6), gridspec_kw={"width_ratios": [1, 1, 1.3]})
     rows = np.array([e.index for e in sim.edits])
-    ax_map.plot(truth[rows, 0], truth[rows, 1], "o", mfc="none", mec="tab:green", ms=8, label="edits")
-    ax_map.set_aspect("equal")
-    ax_map.set_xlabel("east (m)")
-    ax_map.set_ylabel("north (m)")
-    ax_map.set_title(f"{sim.regime} regime, one edit every 100 s")
-    ax_map.legend(loc="best", fontsize=8)
 
     def err(p):
         return np.hypot(*(p[:, :2] - truth[:, :2]).T)
+
+    worst = int(np.argmax(err(problem.p_enu_m)))
+    for ax, step in ((ax_map, 5), (ax_zoom, 1)):
+        if problem.g_enu_m is not None:
+            g_step = 50 if ax is ax_map else 10
+            ax.plot(problem.g_enu_m[::g_step, 0], problem.g_enu_m[::g_step, 1], ".", ms=2, color="0.65",
+                    label="raw GNSS")
+        ax.plot(problem.p_enu_m[::step, 0], problem.p_enu_m[::step, 1], color="tab:red", lw=1, label="input pose")
+        ax.plot(truth[::step, 0], truth[::step, 1], color="k", lw=2.2, label="truth")
+        ax.plot(p_naive[::step, 0], p_naive[::step, 1], color="tab:orange", lw=1, label="naive")
+        ax.plot(p_pf[::step, 0], p_pf[::step, 1], color="tab:blue", lw=1.2, label="posefix")
+        ax.plot(truth[rows, 0], truth[rows, 1], "o", mfc="none", mec="tab:green", ms=8, label="edits")
+        ax.set_aspect("equal")
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+    ax_map.set_title(f"{sim.regime} regime, one edit every 100 s")
+    ax_map.legend(loc="best", fontsize=8)
+    c = truth[worst]
+    ax_zoom.set_xlim(c[0] - 60, c[0] + 60)
+    ax_zoom.set_ylim(c[1] - 60, c[1] + 60)
+    ax_zoom.set_title(f"zoom at t = {t[worst]:.0f} s, where the input is worst")
+    ax_map.plot([c[0]], [c[1]], "s", mfc="none", mec="tab:purple", ms=14)
 
     ax_err.plot(t, err(problem.p_enu_m), color="tab:red", lw=0.8, label=f"input ({h_rmse(problem.p_enu_m, truth):.2f} m RMSE)")
     ax_err.plot(t, err(p_naive), color="tab:orange", lw=0.8, label=f"naive ({h_rmse(p_naive, truth):.2f} m)")
@@ -352,7 +363,7 @@ def plot_run(path: Path, problem, sim, truth, p_pf, p_naive, p_gt):
     ax_err.set_yscale("log")
     ax_err.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -363,7 +374,12 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes only (about a minute)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out", help="folder for the plot")
+    ap.add_argument("--plot-only", action="store_true", help="only simulate the plotted drive and write the plot")
     args = ap.parse_args(argv)
+    if args.plot_only:
+        bench_accuracy([100.0], ["mixed"], 1800.0, plot_dir=args.out)
+        print(f"plot: {args.out / 'corrected_run.png'}")
+        return
     sizes = [1000, 3600] if args.quick else [1000, 3600, 10_000, 100_000]
     spacings = [100.0] if args.quick else [30.0, 100.0, 300.0]
     duration = 900.0 if args.quick else 1800.0
