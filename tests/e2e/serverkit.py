@@ -226,8 +226,9 @@ def running_server(workdir: Path, rules_toml: str, basemaps: bool = True) -> Ite
             proc.wait(timeout=15)
         except subprocess.TimeoutExpired:
             proc.kill()
-        ARTIFACTS.mkdir(exist_ok=True)
-        shutil.copy(log, ARTIFACTS / f"server-{workdir.name}.log")
+        if log.exists():
+            ARTIFACTS.mkdir(exist_ok=True)
+            shutil.copy(log, ARTIFACTS / f"server-{workdir.name}.log")
 
 
 @contextlib.contextmanager
