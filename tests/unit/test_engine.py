@@ -200,3 +200,17 @@ def test_a_correction_warm_starts_the_next_solve():
     cold = problem.solve(both)
     assert warm.solver.iterations <= cold.solver.iterations
     assert abs(warm.solver.cost - cold.solver.cost) <= 1e-6 * cold.solver.cost
+
+
+def test_sideways_motion_a_vehicle_cannot_make_is_measured():
+    from posefix.core import rotations as rot
+    from posefix.engine import implausible_motion_m
+
+    k = 6
+    p = np.stack([10.0 * np.arange(k), np.zeros(k), np.zeros(k)], 1)
+    p[3:, 1] += 4.0  # the track jumps 4 m sideways between keyframes 2 and 3 (1 s apart)
+    q = np.tile(rot.exp_quat(np.zeros((1, 3))), (k, 1))  # heading east
+    excess = implausible_motion_m(p, q, np.ones(k - 1), 0.5)
+    assert excess[2] == pytest.approx(3.5)
+    assert np.all(excess[[0, 1, 3, 4]] == 0.0)
+    assert np.all(implausible_motion_m(p, q, np.ones(k - 1), 0.0) == 0.0)  # check off
