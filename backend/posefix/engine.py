@@ -320,8 +320,9 @@ class Problem:
         fixed[-1] = hi > b
         xs = x0.reshape(-1, 6)
         cfg = self.cfg.solver
-        # a local answer is a preview of a few metres' change: 1e-8 of the cost is far below a centimetre
-        x_sub, res = solve_banded(sub, xs[lo:hi + 1].ravel(), cfg.max_iterations, max(cfg.ftol, 1e-8), fixed=fixed)
+        # a local answer previews a change of metres: stopping when a step gains under 1e-6 of the cost
+        # leaves it within about a centimetre of the window's optimum
+        x_sub, res = solve_banded(sub, xs[lo:hi + 1].ravel(), cfg.max_iterations, max(cfg.ftol, 1e-6), fixed=fixed)
         x = xs.copy()
         x[lo:hi + 1] = x_sub.reshape(-1, 6)
         x = x.ravel()
