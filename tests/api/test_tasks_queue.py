@@ -156,3 +156,12 @@ def test_task_lifetime_ends_and_open_slots_are_withdrawn(env: Env) -> None:
         assert service.maintain(s, env.clock.now())["tasks_expired"] == 1
     task = env.client("admin").get(f"/api/v1/tasks/{task_id}").json()
     assert task["status"] == "expired" and task["counts"] == {"withdrawn": 2}
+    # with nothing left that can time out, the worker's maintenance job stops re-scheduling itself
+    with env.db.transaction(write=False) as s:
+        assert service.needs_maintenance(s) is False
+    env.drain()
+    from posefix.jobs.models import Job
+
+    with env.db.transaction(write=False) as s:
+        kinds = [j.status for j in s.scalars(select(Job).where(Job.kind == service.MAINTAIN_JOB))]
+    assert kinds == ["succeeded"]

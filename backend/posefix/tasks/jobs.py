@@ -82,6 +82,10 @@ def maintain(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
     with ctx.db.transaction() as s:
         counts = service.maintain(s, clock.now())
     with ctx.db.transaction() as s:
-        nxt = jobs.enqueue(s, service.MAINTAIN_JOB, {}, max_attempts=1000)
-        nxt.run_after = utcnow() + dt.timedelta(seconds=service.MAINTAIN_EVERY_S)
+        # keep ticking only while something can still expire or be auto-approved; creating a
+        # task or submitting work starts it again (service.ensure_maintenance)
+        if service.needs_maintenance(s):
+            nxt = jobs.enqueue(s, service.MAINTAIN_JOB, {}, max_attempts=1000)
+            nxt.run_after = utcnow() + dt.timedelta(seconds=service.MAINTAIN_EVERY_S)
+            counts["next_in_s"] = service.MAINTAIN_EVERY_S
     return counts

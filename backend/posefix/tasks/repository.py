@@ -111,11 +111,18 @@ def task_runs(session: Session, task_id: int) -> list[TaskRun]:
 
 
 def set_task_status(session: Session, task: Task, to: TaskStatus, *, allowed_from: tuple[str, ...], at: dt.datetime,
-                    actor_id: int | None = None, reason: str | None = None) -> bool:
-    """Conditional transition: only from the given states; recorded when it happens."""
+                    actor_id: int | None = None, reason: str | None = None, skip_locked: bool = False) -> bool:
+    """Conditional transition: only from the given states; recorded when it happens.
+
+    ``skip_locked``: on PostgreSQL, give up at once when another transaction holds the row
+    (the first lease of a task: fifty operators must not queue on one row lock).
+    """
     before = task.status
+    target = Task.id == task.id
+    if skip_locked and is_pg(session):
+        target = Task.id == select(Task.id).where(Task.id == task.id).with_for_update(skip_locked=True).scalar_subquery()
     res = session.execute(
-        update(Task).where(Task.id == task.id, Task.status.in_(allowed_from)).values(status=to, updated_at=at),
+        update(Task).where(target, Task.status.in_(allowed_from)).values(status=to, updated_at=at),
         execution_options={"synchronize_session": False},
     )
     if (res.rowcount or 0) != 1:
@@ -377,6 +384,12 @@ def withdraw_open(session: Session, task_id: int, at: dt.datetime) -> list[int]:
         session.execute(update(Assignment).where(Assignment.id.in_(ids), Assignment.status == AssignmentStatus.open)
                         .values(status=AssignmentStatus.withdrawn, updated_at=at), execution_options={"synchronize_session": False})
     return ids
+
+
+def anything_timed(session: Session) -> bool:
+    live = select(Task.id).where(Task.status.in_(ACTIVE_TASK), Task.is_test.is_(False)).limit(1)
+    held = select(Assignment.id).where(Assignment.status.in_((AssignmentStatus.accepted, AssignmentStatus.submitted))).limit(1)
+    return session.scalar(live) is not None or session.scalar(held) is not None
 
 
 def pending_job(session: Session, kind: str) -> bool:

@@ -71,9 +71,9 @@ def _from_states(table: dict[str, set[str]], to: str) -> tuple[str, ...]:
 
 
 def move_task(session: Session, task: Task, to: TaskStatus, at: dt.datetime, *, actor_id: int | None = None,
-              reason: str | None = None) -> bool:
+              reason: str | None = None, skip_locked: bool = False) -> bool:
     return repo.set_task_status(session, task, to, allowed_from=_from_states(TASK_TRANSITIONS, to), at=at,
-                                actor_id=actor_id, reason=reason)
+                                actor_id=actor_id, reason=reason, skip_locked=skip_locked)
 
 
 def move_assignment(
@@ -175,6 +175,11 @@ def ensure_maintenance(session: Session) -> None:
         jobs.enqueue(session, MAINTAIN_JOB, {}, max_attempts=1000)
 
 
+def needs_maintenance(session: Session) -> bool:
+    """Is there a live task, a held lease or submitted work (things that time out)?"""
+    return repo.anything_timed(session)
+
+
 def get_task(session: Session, principal: Principal, task_id: int) -> Task:
     task = session.get(Task, task_id)
     if task is None or not can_see_task(principal, task):
@@ -252,8 +257,9 @@ def next_assignment(session: Session, principal: Principal, now: dt.datetime) ->
     uid = principal.user_id
     repo.lock_operator(session, uid, now)
     active = repo.active_leases(session, uid)
-    facts = operator_facts(session, uid)
     candidates = repo.candidate_tasks(session, uid, now)
+    # the operator's facts cost several queries: only when some task asks for them
+    facts = operator_facts(session, uid) if any(t.requirements for t in candidates) else qual.OperatorFacts()
     free: list[int] = []
     area_tasks: list[Task] = []
     ineligible: list[dict[str, Any]] = []
@@ -309,7 +315,7 @@ def next_assignment(session: Session, principal: Principal, now: dt.datetime) ->
     task = session.get(Task, tid)
     assert task is not None
     if task.status == TaskStatus.assignable:
-        move_task(session, task, TaskStatus.in_progress, now, actor_id=uid, reason="first lease")
+        move_task(session, task, TaskStatus.in_progress, now, actor_id=uid, reason="first lease", skip_locked=True)
     return {"assignment": assignment_public(session, a, now), "message": "leased", "ineligible": ineligible}
 
 
@@ -448,6 +454,7 @@ def submit(session: Session, settings: Settings, principal: Principal, assignmen
     if not ok:
         raise _not_active(a, now)
     jobs.enqueue(session, EVALUATE_JOB, {"assignment_id": a.id}, run_id=a.run_id, created_by=principal.user_id)
+    ensure_maintenance(session)  # auto-approval is due later
     if wake is not None:
         from posefix.db import on_commit
 
