@@ -181,7 +181,7 @@ class TestProcesses:
 
     def test_sigkill_mid_job_reruns_after_lease_and_writes_revision_once(self, app, settings, client, users):
         # A long run so the job is still running when the worker is killed.
-        rid = upload(client, users["admin"], drive_csv(200_000, hz=100.0)).json()["id"]
+        rid = upload(client, users["admin"], drive_csv(50_000, hz=100.0)).json()["id"]
         r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [7]}, headers=users["admin"])
         jid = r.json()["job_id"]
         env = worker_env(settings, POSEFIX_JOB_LEASE_S=2, POSEFIX_JOB_HEARTBEAT_S=0.5)

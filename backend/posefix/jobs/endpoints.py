@@ -77,13 +77,16 @@ async def events(
     """Server-sent events: ``job.progress`` (a job changed) and ``revision.ready``."""
     db: Database = request.app.state.db
 
+    # Start slightly in the past when following named jobs, so a job (and its revision)
+    # that finished just before the subscription is still reported.
+    since = utcnow() - dt.timedelta(seconds=5) if job_id else utcnow()
+
     def start_rev_id() -> int:
         with db.transaction(write=False) as s:
-            return int(s.scalar(select(Revision.id).order_by(Revision.id.desc()).limit(1)) or 0)
+            stmt = select(Revision.id).where(Revision.created_at <= since).order_by(Revision.id.desc()).limit(1)
+            return int(s.scalar(stmt) or 0)
 
     last_rev_id = await anyio.to_thread.run_sync(start_rev_id)
-    # Start slightly in the past so a job that changed just before we subscribed is sent.
-    since = utcnow() - dt.timedelta(seconds=2) if job_id else utcnow()
 
     async def stream() -> AsyncIterator[dict[str, str]]:
         nonlocal since, last_rev_id
