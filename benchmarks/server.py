@@ -363,6 +363,9 @@ def print_table(rows: list[Row]) -> None:
               f"{'' if ratio is None else f'{ratio:.2f}':>7}  {row.verdict()}{('  ' + row.note) if row.note else ''}")
     print()
     print("ratio = ours / target: ≤ 1.00 meets a time target, ≥ 1.00 meets a rate target.")
+    load_1, load_5, _ = os.getloadavg()
+    print(f"machine: {os.cpu_count()} CPUs, load average {load_1:.1f} (1 min) {load_5:.1f} (5 min) at the end: "
+          "figures taken on a busy machine are slower than the server's own cost.")
 
 
 def main() -> None:
