@@ -249,20 +249,30 @@ class TestConflict:
             b.get_by_test_id("submit").click()
             wait_revision(b, 1)
 
+            # The first tab had nothing unsaved: it shows revision 1 by itself (server-sent event).
+            wait_revision(a, 1)
+            assert "Revision 1 was saved by someone else" in a.get_by_test_id("notices").inner_text()
+            # Now make it stale: op2 saves revision 2 while op1 has an unsaved move.
             move(a, 30, -3, 2)
             wait_unsaved(a, 1)
+            zoom_to(b, 50)
+            move(b, 50, 2, 2)
+            wait_unsaved(b, 1)
+            b.get_by_test_id("submit").click()
+            wait_revision(b, 2)
+            a.get_by_test_id("newer").filter(has_text="Revision 2 was saved by someone else").wait_for(timeout=15_000)
             a.get_by_test_id("submit").click()
             dialog = a.get_by_test_id("conflict")
             dialog.wait_for(timeout=15_000)
             text = dialog.inner_text()
-            assert "changed since you opened it" in text and "revision 1" in text and "1 unsaved edits" in text
+            assert "changed since you opened it" in text and "revision 2" in text and "1 unsaved edits" in text
             shot(a, "conflict", docs=True)
             a.get_by_test_id("conflict-reapply").click()
-            wait_revision(a, 1)
-            wait_unsaved(a, 1)
-            assert status_of(a, 30) == "moved" and status_of(a, 40) == "moved"
-            a.get_by_test_id("submit").click()
             wait_revision(a, 2)
+            wait_unsaved(a, 1)
+            assert status_of(a, 30) == "moved" and status_of(a, 40) == "moved" and status_of(a, 50) == "moved"
+            a.get_by_test_id("submit").click()
+            wait_revision(a, 3)
         finally:
             ctx1.close()
             ctx2.close()

@@ -44,6 +44,8 @@ export interface EditorState {
   showGhost: boolean;
   mode: ModeName;
   conflict: { baseRevision: number; currentRevision: number | null } | null;
+  /** A newer revision someone else saved while this one is open (server-sent event). */
+  newer: number | null;
   submit: SubmitState;
   /** A network or server error to show plainly. */
   error: string | null;
@@ -63,6 +65,7 @@ export function editorNew(): EditorState {
     showGhost: true,
     mode: "browse",
     conflict: null,
+    newer: null,
     submit: { kind: "idle" },
     error: null,
     lastSolverTimeS: null,

@@ -28,6 +28,7 @@ export class EditorController {
   private previewTimer: number | undefined;
   private disposed = false;
   private unsub: () => void;
+  private events: EventSource | null = null;
   /** Messages for the operator (refusals of re-applied edits, submit results). */
   onNotice: (text: string) => void = () => {};
   /** Set by a task page: submit to the assignment instead of the run (resolves to a notice). */
@@ -42,8 +43,43 @@ export class EditorController {
     });
   }
 
+  /**
+   * Follow the server's events for this run: when someone else's revision becomes ready,
+   * load it at once if nothing is unsaved, else say so (submitting would conflict).
+   */
+  watch(): void {
+    if (typeof EventSource === "undefined" || this.events) return;
+    this.events = new EventSource(`/api/v1/events?run_id=${encodeURIComponent(this.runId)}&max_s=3600`, { withCredentials: true });
+    this.events.addEventListener("revision.ready", (ev) => {
+      try {
+        const d = JSON.parse((ev as MessageEvent).data) as { run_id: number; revision: number };
+        void this.revisionReady(Number(d.revision));
+      } catch {
+        /* a malformed event is ignored; submit still detects conflicts */
+      }
+    });
+  }
+
+  private async revisionReady(n: number): Promise<void> {
+    const s = this.store.get();
+    if (!s.doc || n <= s.doc.revision || (s.newer !== null && n <= s.newer)) return;
+    if (s.submit.kind === "sending" || s.submit.kind === "waiting") return; // our own batch
+    if (editCount(currentEdits(s)) === 0 && !s.staging && s.mode === "browse") {
+      try {
+        const doc = await api.loadDoc(this.runId);
+        this.store.update((x) => (editCount(currentEdits(x)) === 0 ? loadDoc(x, doc) : { ...x, newer: n }));
+        this.onNotice(`Revision ${doc.revision} was saved by someone else and is now shown.`);
+      } catch (err) {
+        this.store.update((x) => setError(x, `Loading revision ${n} failed: ${describeError(err)}`));
+      }
+      return;
+    }
+    this.store.update((x) => ({ ...x, newer: n }));
+  }
+
   dispose(): void {
     this.disposed = true;
+    this.events?.close();
     this.unsub();
     this.previewAbort?.abort();
     window.clearTimeout(this.previewTimer);
@@ -219,7 +255,7 @@ export class EditorController {
   /** After a conflict: load the latest revision and re-apply the unsaved edits that still pass. */
   async reloadAndReapply(): Promise<void> {
     const edits = currentEdits(this.store.get());
-    const want = this.store.get().conflict?.currentRevision ?? null;
+    const want = this.store.get().conflict?.currentRevision ?? this.store.get().newer ?? null;
     let doc: RunDoc;
     try {
       doc = await this.loadAtLeast(want);

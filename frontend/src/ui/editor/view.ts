@@ -20,6 +20,7 @@ import { CorrectionChart } from "./chart";
 import { EditorController } from "./controller";
 import { ImagesPanel } from "./images";
 import { driftInfo, legend, selectionInfo, statusBar, toolbarState } from "./panels";
+import { SuggestionsPanel } from "../../maps/suggestPanel";
 
 export function renderEditor(main: HTMLElement, _app: AppContext, runId: string, onController?: (ctl: EditorController) => void): () => void {
   const ctl = new EditorController(runId);
@@ -42,8 +43,11 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   const fitBtn = btn("Fit", () => fit(), { title: "Zoom to the whole run (F)" });
   const comment = h("input", { id: "submit-comment", placeholder: "Comment (optional)", "aria-label": "Comment for this submission" });
   const submitBtn = btn("Submit", () => void ctl.submit(comment.value), { class: "primary", "data-testid": "submit" });
+  const suggest = new SuggestionsPanel(ctl, (t) => notices.replaceChildren(h("p", {}, t)));
+  cleanups.push(() => suggest.dispose());
   const toolbar = h("div", { class: "toolbar", role: "toolbar", "aria-label": "Editing tools" },
     title, undoBtn, redoBtn, h("span", { class: "sep" }), deleteBtn, rangeBtn, acceptBtn, resetBtn, h("span", { class: "sep" }), ghostBtn, imagesBtn, fitBtn,
+    h("span", { class: "sep" }), ...suggest.elements,
     h("span", { class: "grow" }), comment, submitBtn);
 
   const mapEl = h("div", { class: "map", id: "map", "aria-label": "Map of the run; drag keyframes to correct them", role: "application", tabindex: "0" });
@@ -57,6 +61,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   const driftBox = h("div");
   const notices = h("div", { class: "notices", role: "status", "aria-live": "polite", "data-testid": "notices" });
   const errorBox = h("div", { class: "error-box", role: "alert", "data-testid": "error", hidden: true });
+  const newerBox = h("div", { class: "newer-box", role: "status", "data-testid": "newer", hidden: true });
   const side = h("aside", { class: "side", "aria-label": "Keyframe details" },
     h("h2", {}, "Selected keyframe"), selBox,
     images.el,
@@ -80,7 +85,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   const bottom = h("div", { class: "bottom" }, h("div", { class: "chart-wrap" }, h("span", { class: "chart-title" }, "Correction (m) along the run"), chart.canvas), h("div", { class: "status-row" }, statusEl, submitMsg));
   const conflict = h("div", { class: "conflict", role: "alertdialog", "aria-modal": "true", "aria-labelledby": "conflict-h", "data-testid": "conflict", hidden: true });
   const refusalLive = h("div", { class: "sr-only", role: "alert", "data-testid": "refusal-live" });
-  const root = h("div", { class: "editor" }, toolbar, errorBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict, refusalLive);
+  const root = h("div", { class: "editor" }, toolbar, errorBox, newerBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict, refusalLive);
   main.append(root);
   ctl.onNotice = (t) => notices.replaceChildren(h("p", {}, t));
 
@@ -144,6 +149,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
       if (current) showBasemap(map, opts, current);
       adapter = new MapAdapter(map);
       adapter.install();
+      suggest.attach(map);
       modes = new ModeManager({
         map,
         store,
@@ -193,6 +199,17 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
     submitMsg.className = `submit-msg ${sub.kind === "error" ? "error" : ""}`;
     errorBox.hidden = !s.error;
     errorBox.textContent = s.error ?? "";
+    if (!prev || prev.newer !== s.newer) {
+      newerBox.hidden = s.newer === null;
+      newerBox.replaceChildren(
+        ...(s.newer === null
+          ? []
+          : [
+              `Revision ${s.newer} was saved by someone else while you edit revision ${s.doc?.revision}; submitting now would conflict. `,
+              btn("Reload and re-apply my edits", () => void ctl.reloadAndReapply(), { "data-testid": "newer-reapply" }),
+            ]),
+      );
+    }
 
     const heavy = !prev || prev.doc !== s.doc || currentEdits(prev) !== currentEdits(s) || prev.preview !== s.preview || prev.showGhost !== s.showGhost;
     if (heavy) {
@@ -284,6 +301,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
 
   ctl.load().then(
     () => {
+      ctl.watch();
       const s = store.get();
       if (s.doc && s.doc.keyframes.some((k) => k.images.length)) {
         api.runImages(runId).then(
