@@ -8,6 +8,7 @@ the same transaction, so a job never points at a batch that was rolled back.
 
 from __future__ import annotations
 
+import json
 import time
 from typing import Any
 
@@ -73,9 +74,13 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
     refused_deleted = {r.index for r in check.refusals if r.reason == "out_of_range"}
     kept = [m for m in batch_moves if m.index in accepted_idx]
     merged = correction.merge(base, kept, [d for d in deleted if d not in refused_deleted], check.flags)
-    warm = correction.PROBLEMS.solution(run.id, run.rules, base_revision)
-    sol = correction.solve(problem, merged, warm)
-    correction.PROBLEMS.put_solution(run.id, run.rules, base_revision, sol)
+    # Warm start: the previous frame of the same drag, else the base revision's exact solution
+    # (solved once and cached); the engine then re-solves only around what changed.
+    drag_key = (run.id, json.dumps(run.rules, sort_keys=True), base_revision,
+                tuple(m[0] for m in merged["moves"]), tuple(merged["deleted"]))
+    warm = correction.PROBLEMS.preview_solution(drag_key) or correction.base_solution(run.id, run.rules, base_revision, problem, base)
+    sol = correction.solve(problem, merged, warm, local=True)
+    correction.PROBLEMS.put_preview_solution(drag_key, sol)
     lon, lat, _ = correction.keyframe_lonlatalt(problem, sol)
     return {
         "base_revision": base_revision,
@@ -86,6 +91,24 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
         "flags": [f.to_json() for f in check.flags],
         "time_ms": round((time.perf_counter() - started) * 1000, 2),
     }
+
+
+def prewarm(db: Any, settings: Settings, run_id: int, revision: int) -> None:
+    """Prepare the run and solve its revision in the background, so the first drag is fast."""
+
+    def work() -> None:
+        with db.transaction(write=False) as session:
+            run = session.get(Run, run_id)
+            if run is None or run.status == RunStatus.deleted:
+                return
+            if correction.PROBLEMS.solution(run.id, run.rules, revision) is not None:
+                return
+            base = edit_set_at(session, run, revision)
+            problem = load_problem(session, settings, run)
+            rules = dict(run.rules)
+        correction.base_solution(run_id, rules, revision, problem, base)
+
+    correction.warm_once(run_id, revision, work)
 
 
 def parse_base(if_match: str | None, body_base: int | None) -> int:

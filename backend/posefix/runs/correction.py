@@ -64,6 +64,9 @@ class ProblemCache:
         self._solutions: OrderedDict[tuple[int, str, int], Solution] = OrderedDict()
         self._lock = threading.Lock()
         self._loading: dict[tuple[int, str], threading.Lock] = {}
+        # The last preview per (run, rules, base revision, edited keyframes): the warm start of
+        # the next frame of the same drag, so the engine can re-solve locally.
+        self._previews: OrderedDict[tuple[Any, ...], Solution] = OrderedDict()
 
     def problem(self, run_id: int, rules: dict[str, Any], load: Callable[[], tuple[PoseRun, CorrectionConfig]]) -> Problem:
         key = (run_id, json.dumps(rules, sort_keys=True))
@@ -99,10 +102,22 @@ class ProblemCache:
             while len(self._solutions) > 4 * self.size:
                 self._solutions.popitem(last=False)
 
+    def preview_solution(self, key: tuple[Any, ...]) -> Solution | None:
+        with self._lock:
+            return self._previews.get(key)
+
+    def put_preview_solution(self, key: tuple[Any, ...], sol: Solution) -> None:
+        with self._lock:
+            self._previews[key] = sol
+            self._previews.move_to_end(key)
+            while len(self._previews) > 8 * self.size:
+                self._previews.popitem(last=False)
+
     def forget_all(self) -> None:
         with self._lock:
             self._problems.clear()
             self._solutions.clear()
+            self._previews.clear()
 
     def forget(self, run_id: int) -> None:
         with self._lock:
@@ -110,9 +125,36 @@ class ProblemCache:
                 del self._problems[key]
             for skey in [k for k in self._solutions if k[0] == run_id]:
                 del self._solutions[skey]
+            for pkey in [k for k in self._previews if k[0] == run_id]:
+                del self._previews[pkey]
 
 
 PROBLEMS = ProblemCache()
+_warming: set[tuple[int, int]] = set()
+_warming_lock = threading.Lock()
+
+
+def base_solution(run_id: int, rules: dict[str, Any], revision: int, problem: Problem, edit_set: dict[str, Any]) -> Solution:
+    """The exact solution of a revision's edit set (cached): the warm start of its previews."""
+    sol = PROBLEMS.solution(run_id, rules, revision)
+    if sol is None:
+        sol = solve(problem, edit_set, None)
+        PROBLEMS.put_solution(run_id, rules, revision, sol)
+    return sol
+
+
+def warm_once(run_id: int, revision: int, fn: Callable[[], None]) -> None:
+    """Run ``fn`` unless a warm-up of the same revision is already under way."""
+    key = (run_id, revision)
+    with _warming_lock:
+        if key in _warming:
+            return
+        _warming.add(key)
+    try:
+        fn()
+    finally:
+        with _warming_lock:
+            _warming.discard(key)
 
 
 def moves_of(edit_set: dict[str, Any]) -> list[BatchMove]:
@@ -166,7 +208,8 @@ def merge(base: dict[str, Any], moves: list[BatchMove], deleted: list[int], flag
     }
 
 
-def solve(problem: Problem, edit_set: dict[str, Any], warm: Solution | None = None) -> Solution:
+def solve(problem: Problem, edit_set: dict[str, Any], warm: Solution | None = None, *, local: bool = False) -> Solution:
+    """Solve an edit set; ``local`` (with a warm start) re-optimises only around what changed."""
     moves = moves_of(edit_set)
     c_m = to_en(problem, moves)
     flags = [Refusal(int(f["index"]), f["reason"], f["message"]) for f in edit_set.get("flags", [])]
@@ -178,6 +221,7 @@ def solve(problem: Problem, edit_set: dict[str, Any], warm: Solution | None = No
         np.array(edit_set.get("deleted", []), dtype=np.int64),
         warm,
         flags,
+        local=local,
     )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as dt
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, BackgroundTasks, Query, Request, Response
 from fastapi.responses import FileResponse, StreamingResponse
 from starlette.datastructures import UploadFile
 
@@ -16,6 +16,7 @@ from posefix.runs import repository as repo
 from posefix.runs import service
 from posefix.runs.access import get_visible_run, visible_clause
 from posefix.runs.models import RunStatus
+from posefix.users.models import Role
 from posefix.runs.schemas import (
     ImageList, ImagePublic, ReviewRequest, RunEventPublic, RunHistory, RunList, RunPublic,
 )
@@ -156,12 +157,17 @@ def delete_run(run_id: int, principal: OwnerUser, session: SessionDep, settings:
 
 @router.get("/runs/{run_id}/keyframes", responses={200: {"content": {"application/geo+json": {}}}, **responses(401, 404, 409)})
 def get_keyframes(
-    run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep,
-    revision: Annotated[int | None, Query(ge=0, le=10**9)] = None,
+    run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep, request: Request,
+    background: BackgroundTasks, revision: Annotated[int | None, Query(ge=0, le=10**9)] = None,
 ) -> Response:
     """Keyframes of a revision (default: the latest ready) as a GeoJSON FeatureCollection."""
     run = get_visible_run(session, principal, settings, run_id)
     body = service.keyframes_geojson(session, settings, run, revision)
+    if principal.role in (Role.admin, Role.reviewer, Role.operator) and run.head_revision == (revision if revision is not None else run.revision):
+        # An editor is about to drag: solve this revision now, after the response is sent.
+        from posefix.edits.service import prewarm
+
+        background.add_task(prewarm, request.app.state.db, settings, run.id, run.head_revision)
     return Response(body, media_type="application/geo+json")
 
 
