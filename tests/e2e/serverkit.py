@@ -109,17 +109,23 @@ class Server:
 
 
 def ensure_frontend_built() -> None:
-    """Build frontend/dist when it is missing or older than the sources."""
-    dist = FRONTEND / "dist" / "index.html"
-    src_mtime = max(p.stat().st_mtime for p in (FRONTEND / "src").rglob("*") if p.is_file())
-    if dist.is_file() and dist.stat().st_mtime >= src_mtime:
-        return
-    npm = shutil.which("npm")
-    if npm is None:
-        raise RuntimeError("npm is needed to build the front end for the browser tests")
-    if not (FRONTEND / "node_modules").is_dir():
-        subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=FRONTEND, check=True)
-    subprocess.run([npm, "run", "build", "--silent"], cwd=FRONTEND, check=True)
+    """Build frontend/dist when it is missing or older than the sources (one build at a
+    time: pytest-xdist workers share the tree)."""
+    import fcntl
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    with open(ARTIFACTS / ".frontend-build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        dist = FRONTEND / "dist" / "index.html"
+        src_mtime = max(p.stat().st_mtime for p in (FRONTEND / "src").rglob("*") if p.is_file())
+        if dist.is_file() and dist.stat().st_mtime >= src_mtime:
+            return
+        npm = shutil.which("npm")
+        if npm is None:
+            raise RuntimeError("npm is needed to build the front end for the browser tests")
+        if not (FRONTEND / "node_modules").is_dir():
+            subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=FRONTEND, check=True)
+        subprocess.run([npm, "run", "build", "--silent"], cwd=FRONTEND, check=True)
 
 
 def add_camera_images(sim_dir: Path, every_s: int = 2) -> tuple[Path, Path]:
