@@ -109,3 +109,63 @@ def test_bad_task_input_is_refused_with_field(env: Env) -> None:
         {"qualification": "approved_count", "comparator": "exists"}]))
     assert r.status_code == 422 and "numeric comparator" in r.json()["detail"]
     assert env.client("admin").get("/api/v1/tasks").json()["total"] == 1
+
+
+def test_extend_policy_asks_one_more_operator_and_the_plurality_wins(env: Env) -> None:
+    run_id = env.import_run("drive-b", seed=12)
+    for n in ("op1", "op2", "op3", "op4"):
+        env.add_user(n, "operator")
+    task = env.client("admin").post("/api/v1/tasks", json=task_body(
+        [run_id], conflict_policy="extend", max_extra_assignments=1)).json()
+    ids = {}
+    for who, east in (("op1", 0.0), ("op2", 20.0)):
+        a = env.client(who).post("/api/v1/tasks/next").json()["assignment"]
+        ids[who] = a["id"]
+        r = env.client(who).post(f"/api/v1/assignments/{a['id']}/submit",
+                                 json={"moves": [truth_move(env, run_id, k, error_east_m=east) for k in (10, 30)]})
+        assert r.status_code == 200, r.text
+    env.drain()
+    t = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()
+    assert t["status"] == "in_progress" and t["runs"][0]["status"] == "open" and t["runs"][0]["wanted"] == 3
+    assert t["counts"]["open"] == 1
+    # the third operator agrees (within a metre) with op1
+    a3 = env.client("op3").post("/api/v1/tasks/next").json()["assignment"]
+    r = env.client("op3").post(f"/api/v1/assignments/{a3['id']}/submit",
+                               json={"moves": [truth_move(env, run_id, k, error_east_m=0.8) for k in (10, 30)]})
+    assert r.status_code == 200
+    env.drain()
+    t = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()
+    tr = t["runs"][0]
+    assert tr["status"] == "agreed" and t["status"] == "reviewable"
+    assert {c["a"] for c in tr["conflicts"]} | {c["b"] for c in tr["conflicts"]} >= {ids["op2"]}  # still listed
+    view = env.client("reviewer").get(f"/api/v1/task-runs/{tr['id']}/review").json()
+    err = {s["operator"]: s["consensus_error_m"] for s in view["submissions"]}
+    assert err["op2"] > 15.0 and err["op1"] < 2.0 and err["op3"] < 2.0  # the median sits with the majority
+    # the outlier is rejected, the others approved; the merge uses the approved two
+    env.client("reviewer").post(f"/api/v1/assignments/{ids['op2']}/review", json={"decision": "reject", "feedback": "20 m off"})
+    assert env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()["runs"][0]["status"] == "agreed"
+    for aid in (ids["op1"], a3["id"]):
+        env.client("reviewer").post(f"/api/v1/assignments/{aid}/review", json={"decision": "approve"})
+    env.drain()
+    t = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()
+    assert t["runs"][0]["status"] == "merged" and t["status"] == "done"
+    moves = {m[0]: m for m in env.client("admin").get(f"/api/v1/runs/{run_id}/revisions/1").json()["edit_set"]["moves"]}
+    # between the two approved corrections (0 and 0.8 m east of truth), nowhere near op2's 20 m:
+    # within half a metre (1e-5 degrees of longitude is 0.55 m here)
+    ref = truth_move(env, run_id, 10, error_east_m=0.4)
+    assert abs(moves[10][1] - ref["lon"]) < 1e-5 and abs(moves[10][2] - ref["lat"]) < 1e-5
+
+
+def test_requester_receives_transitions_as_server_sent_events(env: Env) -> None:
+    run_id = env.import_run("drive-c", seed=13)
+    env.add_user("op1", "operator")
+    task = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], assignments_per_run=1)).json()
+    env.client("op1").post("/api/v1/tasks/next")
+    env.client("admin").post(f"/api/v1/tasks/{task['id']}/cancel")
+    with env.client("admin").stream("GET", f"/api/v1/tasks/{task['id']}/events?max_s=10") as r:
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/event-stream")
+        body = "".join(r.iter_text())
+    events = [line for line in body.splitlines() if line.startswith("event:")]
+    assert events and all(e == "event: task.transition" for e in events)
+    assert '"to_status": "cancelled"' in body and '"to_status": "accepted"' in body
+    assert env.client("op1").get(f"/api/v1/tasks/{task['id']}/events").status_code == 404
