@@ -326,6 +326,9 @@ def set_up_demo(
             run_id = _import(db, settings, admin_id, COMMA_RUN_NAME, run, frames)
             created.append(f"run {COMMA_RUN_NAME!r}")
         runs[COMMA_RUN_NAME] = run_id
+        from posefix.maps.demo import ensure_demo_floorplan
+
+        ensure_demo_floorplan(db, settings, source_data, admin_id, created, say)
     finally:
         db.dispose()
     return DemoSummary(DEMO_ACCOUNTS, sources, runs, created)

@@ -325,3 +325,20 @@ class TestSuggestions:
         assert client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["client"]).status_code == 403
         assert client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["operator"]).status_code == 404
         assert client.post("/api/v1/runs/99999/suggestions", headers=users["admin"]).status_code == 404
+
+
+class TestDemoFloor:
+    def test_demo_seeds_the_shared_floor_once_with_its_model(self, app, client, users, settings):
+        from posefix.maps.demo import DEMO_FLOOR_NAME, ensure_demo_floorplan
+        from tests.conftest import add_user
+
+        admin_id = add_user(app, "demo-admin", "admin")
+        created: list[str] = []
+        fid = ensure_demo_floorplan(app.state.db, settings, REPO / "data", admin_id, created)
+        again: list[str] = []
+        assert ensure_demo_floorplan(app.state.db, settings, REPO / "data", admin_id, again) == fid
+        assert len(created) == 1 and again == []
+        fp = client.get(f"/api/v1/floorplans/{fid}", headers=users["operator"]).json()
+        assert fp["name"] == DEMO_FLOOR_NAME and fp["status"] == "ready" and fp["n_vertices"] > 10000
+        r = client.get(f"/api/v1/floorplans/{fid}/model", headers=users["operator"])
+        assert len(r.content) == fp["model_bytes"]

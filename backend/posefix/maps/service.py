@@ -171,9 +171,9 @@ def parse_walkable_geojson(path: Path, name: str) -> tuple[float, float, list, l
 
 def create_floorplan(
     session: Session, settings: Settings, principal: Principal, *, name: str, filename: str | None, fh: BinaryIO,
-    cell_m: float, wake: Any = None,
+    cell_m: float, wake: Any = None, build_now: bool = False,
 ) -> FloorPlan:
-    """Check an upload, store it, and queue its model build."""
+    """Check an upload, store it, and queue its model build (or build it here: ``build_now``)."""
     fname = uploads.safe_name(filename, "file")
     ext = Path(fname).suffix.lower()
     if ext not in (".zip", ".geojson", ".json"):
@@ -210,6 +210,11 @@ def create_floorplan(
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     on_rollback(session, lambda: shutil.rmtree(final, ignore_errors=True))
+    if build_now:
+        out = build_model_files(final, fp.source, cell_m, lambda _f, _m=None: None)
+        fp.status, fp.n_vertices, fp.model_bytes, fp.build_s = FloorPlanStatus.ready, out["n_vertices"], out["model_bytes"], out["build_s"]
+        session.flush()
+        return fp
     job = jobs.enqueue(session, BUILD_JOB, {"floorplan_id": fp.id}, created_by=principal.user_id,
                        max_attempts=settings.job_max_attempts)
     fp.job_id = job.id

@@ -25,6 +25,12 @@ export function actionMoveKeyframe(index: number, lonlat: LonLat): EditAction {
       if (refusal) return { ok: false, refusal };
       const moves = new Map(edits.moves);
       moves.set(index, [lonlat[0], lonlat[1]]);
+      if (edits.suggested?.has(index)) {
+        // Moved by hand now: an operator's move, no longer a machine suggestion.
+        const suggested = new Set(edits.suggested);
+        suggested.delete(index);
+        return ok({ ...edits, moves, suggested, accept: false });
+      }
       return ok({ ...edits, moves, accept: false });
     },
   };

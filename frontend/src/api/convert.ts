@@ -81,19 +81,21 @@ export function driftFrom(raw: unknown): Drift | null {
 }
 
 /** The body of a preview or submit: moves as `{index, lon, lat}`, deletions as indices. */
-export function editsBody(e: Edits): { moves: { index: number; lon: number; lat: number }[]; deleted: number[]; accept: boolean } {
+export function editsBody(e: Edits): { moves: { index: number; lon: number; lat: number; kind: "move" | "suggestion" }[]; deleted: number[]; accept: boolean } {
   return {
-    moves: [...e.moves].sort((a, b) => a[0] - b[0]).map(([index, p]) => ({ index, lon: p[0], lat: p[1] })),
+    moves: [...e.moves].sort((a, b) => a[0] - b[0]).map(([index, p]) => ({ index, lon: p[0], lat: p[1], kind: e.suggested?.has(index) ? "suggestion" as const : "move" as const })),
     deleted: [...e.deleted].sort((a, b) => a - b),
     accept: e.accept,
   };
 }
 
 /** Edits back from a body (to restore unsaved work kept in the browser). */
-export function editsFromBody(b: { moves?: { index: number; lon: number; lat: number }[]; deleted?: number[]; accept?: boolean }): Edits {
+export function editsFromBody(b: { moves?: { index: number; lon: number; lat: number; kind?: string }[]; deleted?: number[]; accept?: boolean }): Edits {
+  const suggested = (b.moves ?? []).filter((m) => m.kind === "suggestion").map((m) => m.index);
   return {
     moves: new Map((b.moves ?? []).map((m) => [m.index, [m.lon, m.lat] as LonLat])),
     deleted: new Set(b.deleted ?? []),
     accept: Boolean(b.accept),
+    ...(suggested.length ? { suggested: new Set(suggested) } : {}),
   };
 }

@@ -68,6 +68,8 @@ export interface Edits {
   readonly moves: ReadonlyMap<number, LonLat>;
   readonly deleted: ReadonlySet<number>;
   readonly accept: boolean;
+  /** Moves accepted from map-matching suggestions (sent as kind "suggestion"); see src/maps. */
+  readonly suggested?: ReadonlySet<number>;
 }
 
 export type RefusalReason =

@@ -12,6 +12,7 @@ import { renderEditor } from "./editor/view";
 import { renderHome } from "./home";
 import { renderLogin } from "./login";
 import { renderTasksRoute, tasksNav } from "../tasks/routes";
+import { renderFloorsRoute } from "../maps/floorPage";
 
 export interface AppContext {
   user: UserPublic | null;
@@ -51,6 +52,7 @@ export function startApp(root: HTMLElement): void {
         u && u.role === "admin" ? h("a", { href: "#/admin/runs" }, "Runs (admin)") : null,
         u && u.role === "admin" ? h("a", { href: "#/admin/tiles" }, "Tile sources") : null,
         ...tasksNav(u),
+        u ? h("a", { href: "#/floors" }, "Floor plans") : null,
       ),
       u
         ? h(
@@ -98,6 +100,7 @@ export function startApp(root: HTMLElement): void {
     }
     const m = path.match(/^\/runs\/([^/?]+)/);
     if (path.startsWith("/tasks")) cleanup = renderTasksRoute(path, main, ctx);
+    else if (path.startsWith("/floors")) cleanup = renderFloorsRoute(path, main, ctx);
     else if (m) cleanup = renderEditor(main, ctx, decodeURIComponent(m[1]));
     else if (path.startsWith("/admin/runs")) cleanup = renderAdminRuns(main, ctx);
     else if (path.startsWith("/admin/tiles")) cleanup = renderAdminTiles(main, ctx);

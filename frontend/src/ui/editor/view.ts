@@ -20,6 +20,7 @@ import { CorrectionChart } from "./chart";
 import { EditorController } from "./controller";
 import { ImagesPanel } from "./images";
 import { driftInfo, legend, selectionInfo, statusBar, toolbarState } from "./panels";
+import { SuggestionsPanel } from "../../maps/suggestPanel";
 
 export function renderEditor(main: HTMLElement, _app: AppContext, runId: string, onController?: (ctl: EditorController) => void): () => void {
   const ctl = new EditorController(runId);
@@ -42,8 +43,11 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   const fitBtn = btn("Fit", () => fit(), { title: "Zoom to the whole run (F)" });
   const comment = h("input", { id: "submit-comment", placeholder: "Comment (optional)", "aria-label": "Comment for this submission" });
   const submitBtn = btn("Submit", () => void ctl.submit(comment.value), { class: "primary", "data-testid": "submit" });
+  const suggest = new SuggestionsPanel(ctl, (t) => notices.replaceChildren(h("p", {}, t)));
+  cleanups.push(() => suggest.dispose());
   const toolbar = h("div", { class: "toolbar", role: "toolbar", "aria-label": "Editing tools" },
     title, undoBtn, redoBtn, h("span", { class: "sep" }), deleteBtn, rangeBtn, acceptBtn, resetBtn, h("span", { class: "sep" }), ghostBtn, imagesBtn, fitBtn,
+    h("span", { class: "sep" }), ...suggest.elements,
     h("span", { class: "grow" }), comment, submitBtn);
 
   const mapEl = h("div", { class: "map", id: "map", "aria-label": "Map of the run; drag keyframes to correct them", role: "application", tabindex: "0" });
@@ -145,6 +149,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
       if (current) showBasemap(map, opts, current);
       adapter = new MapAdapter(map);
       adapter.install();
+      suggest.attach(map);
       modes = new ModeManager({
         map,
         store,

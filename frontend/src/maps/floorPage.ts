@@ -1,0 +1,314 @@
+/**
+ * Floor plan pages: #/floors (list, admin upload with the model job's progress) and
+ * #/floors/ID (the floor image in its metric frame on a canvas — works offline — with a
+ * walk's matched track, the raw dead-reckoning track, the 2σ uncertainty ellipse, a
+ * step-by-step replay (play/pause/scrub) and the error at each surveyed waypoint).
+ */
+import { describeError } from "../api/errors";
+import type { AppContext } from "../ui/app";
+import { clear, fmtTime, h } from "../ui/dom";
+import { type FloorPlan, type WalkTrack, mapsApi } from "./api";
+import { ellipsePx, fitView, fmtM, reachedWaypoints, toPx } from "./floorView";
+import "./maps.css";
+
+const STEP_MS = 200;
+
+function kib(n: number | null): string {
+  return n === null ? "–" : `${(n / 1024).toFixed(1)} KiB`;
+}
+
+export function renderFloorsRoute(path: string, main: HTMLElement, ctx: AppContext): (() => void) | void {
+  const m = path.match(/^\/floors\/(\d+)/);
+  if (m) return renderFloor(main, ctx, Number(m[1]));
+  return renderFloorList(main, ctx);
+}
+
+function renderFloorList(main: HTMLElement, ctx: AppContext): () => void {
+  let alive = true;
+  const list = h("tbody");
+  const msg = h("p", { class: "floor-msg", role: "status", "data-testid": "floor-upload-msg" });
+  const root = h("section", { class: "floors" }, h("h1", {}, "Floor plans"));
+  main.append(root);
+
+  async function load() {
+    try {
+      const r = await mapsApi.listFloors();
+      if (!alive) return;
+      clear(list);
+      for (const f of r.items) {
+        list.append(h("tr", { "data-testid": "floor-row" },
+          h("td", {}, h("a", { href: `#/floors/${f.id}` }, f.name)),
+          h("td", { "data-testid": "floor-status" }, f.status === "failed" ? `failed: ${f.error ?? ""}` : f.status),
+          h("td", {}, f.n_vertices === null ? "–" : String(f.n_vertices)),
+          h("td", {}, kib(f.model_bytes)),
+          h("td", {}, `${f.width_m.toFixed(1)} × ${f.height_m.toFixed(1)} m`),
+          h("td", {}, fmtTime(f.created_at)),
+        ));
+      }
+      if (!r.items.length) list.append(h("tr", {}, h("td", { colspan: "6" }, "No floor plans yet.")));
+    } catch (err) {
+      msg.textContent = describeError(err);
+    }
+  }
+
+  if (ctx.user?.role === "admin") {
+    const name = h("input", { name: "name", required: true, placeholder: "Name", "aria-label": "Floor plan name" });
+    const file = h("input", { type: "file", name: "file", accept: ".zip,.geojson,.json", required: true, "aria-label": "Floor plan file", "data-testid": "floor-file" });
+    const cell = h("input", { type: "number", name: "cell_m", value: "0.8", step: "0.1", min: "0.2", max: "5", "aria-label": "Cell size (m)" });
+    const submit = h("button", { type: "submit", class: "primary", "data-testid": "floor-upload" }, "Upload");
+    const form = h("form", { class: "floor-upload" },
+      h("label", {}, "Name ", name), h("label", {}, "Floor (.zip of floor_info.json, geojson_map.json, floor_image.png; or .geojson of walkable polygons in metres) ", file),
+      h("label", {}, "Cell size (m) ", cell), submit);
+    form.addEventListener("submit", async (e) => {
+      e.preventDefault();
+      const f = file.files?.[0];
+      if (!f) return;
+      const fd = new FormData();
+      fd.append("name", name.value.trim() || f.name);
+      fd.append("cell_m", cell.value);
+      fd.append("file", f, f.name);
+      submit.disabled = true;
+      msg.textContent = "Uploading…";
+      try {
+        const fp = await mapsApi.uploadFloor(fd);
+        await load();
+        await followJob(fp, (t) => (msg.textContent = t), () => alive);
+        await load();
+      } catch (err) {
+        msg.textContent = `Upload refused: ${describeError(err)}`;
+      } finally {
+        submit.disabled = false;
+      }
+    });
+    root.append(h("h2", {}, "Upload a floor plan"), form);
+  }
+  root.append(msg, h("table", { class: "floor-table" },
+    h("thead", {}, h("tr", {}, ...["Name", "Model", "Vertices", "Model size", "Extent", "Uploaded"].map((t) => h("th", {}, t)))), list));
+  void load();
+  return () => {
+    alive = false;
+  };
+}
+
+async function followJob(fp: FloorPlan, say: (t: string) => void, alive: () => boolean): Promise<void> {
+  if (fp.job_id === null) return;
+  for (let i = 0; i < 600 && alive(); i++) {
+    const job = await mapsApi.getJob(fp.job_id);
+    if (job.status === "succeeded") {
+      say(`Model of “${fp.name}” built.`);
+      return;
+    }
+    if (job.status === "dead") {
+      say(`The model could not be built: ${job.last_error ?? "unknown error"}`);
+      return;
+    }
+    say(`Building the model… ${Math.round(job.progress * 100)}%${job.message ? ` (${job.message})` : ""}`);
+    await new Promise((r) => setTimeout(r, 300));
+  }
+}
+
+function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => void {
+  let alive = true;
+  let timer: number | undefined;
+  let fp: FloorPlan | null = null;
+  let track: WalkTrack | null = null;
+  let step = 0;
+  let image: HTMLImageElement | null = null;
+
+  const title = h("h1", {}, "Floor plan");
+  const meta = h("p", { class: "floor-meta", "data-testid": "floor-meta" });
+  const canvas = h("canvas", { class: "floor-canvas", width: 900, height: 660, "data-testid": "floor-canvas", "aria-label": "Floor plan with the tracked walk" });
+  const walkFile = h("input", { type: "file", accept: ".txt", "aria-label": "Walk file", "data-testid": "walk-file" });
+  const start = h("select", { "aria-label": "Start", "data-testid": "walk-start" },
+    h("option", { value: "first_waypoint" }, "Known start (first waypoint)"), h("option", { value: "unknown" }, "Unknown start"));
+  const trackBtn = h("button", { type: "button", class: "primary", "data-testid": "walk-track" }, "Track walk");
+  const msg = h("p", { class: "floor-msg", role: "status", "data-testid": "walk-msg" });
+  const play = h("button", { type: "button", "data-testid": "replay-play", disabled: true }, "▶ Play");
+  const scrub = h("input", { type: "range", min: "0", max: "0", value: "0", "aria-label": "Step", "data-testid": "replay-scrub", disabled: true });
+  const stepLabel = h("span", { "data-testid": "replay-step" }, "");
+  const summary = h("div", { class: "walk-summary", "data-testid": "walk-summary" });
+  const errTable = h("tbody", { "data-testid": "walk-errors" });
+  const legend = h("ul", { class: "floor-legend" },
+    h("li", {}, h("span", { class: "sw matched" }), "matched track (CRF)"),
+    h("li", {}, h("span", { class: "sw dr" }), "dead reckoning"),
+    h("li", {}, h("span", { class: "sw ellipse" }), "2σ uncertainty"),
+    h("li", {}, h("span", { class: "sw wp" }), "surveyed waypoint (error)"));
+  main.append(h("section", { class: "floor-page" },
+    h("p", {}, h("a", { href: "#/floors" }, "← Floor plans")), title, meta,
+    h("div", { class: "floor-body" },
+      h("div", { class: "floor-left" }, canvas,
+        h("div", { class: "replay", role: "group", "aria-label": "Replay" }, play, scrub, stepLabel)),
+      h("aside", { class: "floor-side" },
+        h("h2", {}, "Track a walk"), h("p", {}, "A walk in the competition's path-file format (.txt)."), walkFile, start, trackBtn, msg,
+        summary, legend,
+        h("table", { class: "floor-table" }, h("thead", {}, h("tr", {}, h("th", {}, "Waypoint"), h("th", {}, "CRF error"), h("th", {}, "Dead reckoning"))), errTable)))));
+
+  function draw() {
+    const c = canvas.getContext("2d");
+    if (!c || !fp) return;
+    const v = fitView(fp.width_m, fp.height_m, canvas.width, canvas.height);
+    c.clearRect(0, 0, canvas.width, canvas.height);
+    c.fillStyle = "#f8fafc";
+    c.fillRect(0, 0, canvas.width, canvas.height);
+    const [x0, y1] = toPx(v, 0, fp.height_m);
+    if (image && image.complete && image.naturalWidth) c.drawImage(image, x0, y1, fp.width_m * v.scale, fp.height_m * v.scale);
+    else {
+      c.strokeStyle = "#94a3b8";
+      c.strokeRect(x0, y1, fp.width_m * v.scale, fp.height_m * v.scale);
+    }
+    if (!track) return;
+    const n = Math.min(step, track.steps.length - 1);
+    const line = (pts: [number, number][], color: string, width: number, dash: number[]) => {
+      c.beginPath();
+      pts.forEach(([x, y], i) => (i ? c.lineTo(x, y) : c.moveTo(x, y)));
+      c.setLineDash(dash);
+      c.strokeStyle = color;
+      c.lineWidth = width;
+      c.stroke();
+      c.setLineDash([]);
+    };
+    const upto = track.steps.slice(0, n + 1);
+    line(upto.map((s) => toPx(v, s.dr_x_m, s.dr_y_m)), "#64748b", 2, [6, 4]);
+    line(upto.map((s) => toPx(v, s.x_m, s.y_m)), "#1d4ed8", 3, []);
+    const cur = track.steps[n];
+    const [cx, cy] = toPx(v, cur.x_m, cur.y_m);
+    const e = ellipsePx(v, cur);
+    c.beginPath();
+    c.ellipse(cx, cy, e.rx, e.ry, e.rotation, 0, 2 * Math.PI);
+    c.fillStyle = "rgba(29,78,216,0.15)";
+    c.fill();
+    c.strokeStyle = "#1d4ed8";
+    c.lineWidth = 1.5;
+    c.stroke();
+    c.beginPath();
+    c.arc(cx, cy, 4, 0, 2 * Math.PI);
+    c.fillStyle = "#1d4ed8";
+    c.fill();
+    const reached = new Set(reachedWaypoints(track, n).map((w) => w.t_ms));
+    c.font = "12px system-ui, sans-serif";
+    for (const w of track.errors.waypoints) {
+      const [wx, wy] = toPx(v, w.x_m, w.y_m);
+      c.strokeStyle = reached.has(w.t_ms) ? "#dc2626" : "#fca5a5";
+      c.lineWidth = 2;
+      c.beginPath();
+      c.moveTo(wx - 5, wy - 5);
+      c.lineTo(wx + 5, wy + 5);
+      c.moveTo(wx + 5, wy - 5);
+      c.lineTo(wx - 5, wy + 5);
+      c.stroke();
+      if (reached.has(w.t_ms) && !w.given_start) {
+        c.fillStyle = "#991b1b";
+        c.fillText(fmtM(w.error_m), wx + 7, wy - 7);
+      }
+    }
+  }
+
+  function setStep(i: number) {
+    if (!track) return;
+    step = Math.max(0, Math.min(i, track.steps.length - 1));
+    scrub.value = String(step);
+    const s = track.steps[step];
+    const reached = reachedWaypoints(track, step).filter((w) => !w.given_start);
+    stepLabel.textContent = `step ${step} / ${track.steps.length - 1} · 2σ ${fmtM(2 * s.sigma_major_m)}${reached.length ? ` · last waypoint error ${fmtM(reached[reached.length - 1].error_m)}` : ""}`;
+    canvas.dataset.step = String(step);
+    canvas.dataset.waypointsReached = String(reached.length);
+    draw();
+  }
+
+  function stop() {
+    window.clearInterval(timer);
+    timer = undefined;
+    play.textContent = "▶ Play";
+    play.setAttribute("aria-pressed", "false");
+  }
+
+  play.addEventListener("click", () => {
+    if (!track) return;
+    if (timer !== undefined) return stop();
+    if (step >= track.steps.length - 1) setStep(0);
+    play.textContent = "❚❚ Pause";
+    play.setAttribute("aria-pressed", "true");
+    timer = window.setInterval(() => {
+      if (!track) return stop();
+      setStep(step + 1);
+      if (step >= track.steps.length - 1) stop();
+    }, STEP_MS);
+  });
+  scrub.addEventListener("input", () => {
+    stop();
+    setStep(Number(scrub.value));
+  });
+
+  function showTrack(t: WalkTrack) {
+    track = t;
+    stop();
+    scrub.max = String(t.steps.length - 1);
+    scrub.disabled = play.disabled = false;
+    const e = t.errors;
+    summary.replaceChildren(
+      h("p", {}, `${t.walk.file}: ${t.walk.n_steps} steps, tracked in ${t.walk.track_ms.toFixed(0)} ms (${t.walk.ms_per_step.toFixed(2)} ms per step).`),
+      e.n
+        ? h("p", { "data-testid": "error-mean" }, `Error at ${e.n} waypoint${e.n === 1 ? "" : "s"}: mean ${fmtM(e.mean_m)}, max ${fmtM(e.max_m)} (dead reckoning: mean ${fmtM(e.dr_mean_m)}).`)
+        : h("p", { "data-testid": "error-mean" }, "This walk has no surveyed waypoints to measure the error against."),
+    );
+    clear(errTable);
+    e.waypoints.forEach((w, i) => errTable.append(h("tr", {},
+      h("td", {}, `${i + 1} (${w.x_m.toFixed(1)}, ${w.y_m.toFixed(1)})${w.given_start ? " start" : ""}`),
+      h("td", {}, w.given_start ? "given" : fmtM(w.error_m)), h("td", {}, w.given_start ? "given" : fmtM(w.dr_error_m)))));
+    setStep(0);
+  }
+
+  trackBtn.addEventListener("click", async () => {
+    const f = walkFile.files?.[0];
+    if (!f || !fp) {
+      msg.textContent = "Choose a walk file first.";
+      return;
+    }
+    const fd = new FormData();
+    fd.append("start", start.value);
+    fd.append("file", f, f.name);
+    trackBtn.disabled = true;
+    msg.textContent = "Tracking…";
+    try {
+      const t = await mapsApi.trackWalk(fp.id, fd);
+      if (!alive) return;
+      msg.textContent = "";
+      showTrack(t);
+    } catch (err) {
+      msg.textContent = describeError(err);
+    } finally {
+      trackBtn.disabled = false;
+    }
+  });
+
+  (async () => {
+    try {
+      fp = await mapsApi.getFloor(id);
+    } catch (err) {
+      title.textContent = "Floor plan";
+      meta.textContent = describeError(err);
+      return;
+    }
+    if (!alive) return;
+    title.textContent = fp.name;
+    meta.replaceChildren(
+      `${fp.width_m.toFixed(1)} × ${fp.height_m.toFixed(1)} m · ${fp.cell_m} m cells · ${fp.n_vertices ?? "–"} vertices · model ${fp.status}`,
+      fp.status === "ready" ? h("span", {}, " · ", h("a", { href: mapsApi.modelUrl(fp.id), download: `floorplan-${fp.id}.npz`, "data-testid": "model-download" }, `download model (${kib(fp.model_bytes)})`)) : "",
+    );
+    trackBtn.disabled = fp.status !== "ready";
+    if (fp.status !== "ready") msg.textContent = fp.status === "failed" ? `The model failed: ${fp.error}` : "The model is being built; reload in a moment.";
+    if (fp.has_image) {
+      image = new Image();
+      image.onload = () => {
+        canvas.dataset.image = "loaded";
+        draw();
+      };
+      image.src = mapsApi.imageUrl(fp.id);
+    }
+    draw();
+  })();
+  return () => {
+    alive = false;
+    stop();
+  };
+}
