@@ -298,6 +298,9 @@ class TestImagesAndKeyboard:
         assert re.search(r"[\d.]+ s into the run .*UTC\) · 60\.\d{6}, 24\.\d{6}", meta)
         page.get_by_role("button", name="Next camera image").click()
         assert page.get_by_test_id("image-count").inner_text() == "Camera image 2 of 2"
+        page.get_by_test_id("image").hover()
+        page.mouse.wheel(0, 120)
+        assert page.get_by_test_id("image-count").inner_text() == "Camera image 1 of 2"
         shot(page, "images-panel", docs=True)
 
     def test_keyboard_moves_selection_and_undoes(self, server, context, run_id):

@@ -58,6 +58,12 @@ export class ImagesPanel {
     const exif = m && m.exif_lat !== null && m.exif_lon !== null ? ` · EXIF ${m.exif_lat.toFixed(6)}, ${m.exif_lon.toFixed(6)}${m.exif_time ? ` at ${m.exif_time}` : ""}` : "";
     const img = h("img", { src: api.imageUrl(id), alt: `Camera image ${this.at + 1} of ${n} at keyframe ${kf.index}`, "data-testid": "image", loading: "eager" });
     img.addEventListener("error", () => img.replaceWith(h("p", { class: "error" }, `Image ${id} could not be loaded.`)));
+    // Scrolling over the image steps through the cameras.
+    img.addEventListener("wheel", (e) => {
+      if (n < 2) return;
+      e.preventDefault();
+      this.step(e.deltaY > 0 ? 1 : -1);
+    }, { passive: false });
     this.el.replaceChildren(
       head,
       h("a", { href: api.imageUrl(id), target: "_blank", rel: "noopener" }, img),
