@@ -108,8 +108,9 @@ def fingerprints(
         fp = build_fingerprints(ws)
         with _atomic(output, ".npz") as tmp:
             size = save_fingerprints(fp, tmp)
-        typer.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points, "
-                   f"{len(fp.peak_xy_m)} peaks; {size / 1024:.1f} KiB -> {output}")
+        typer.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points "
+                   f"({fp.n_fitted_aps} with a fitted position), {len(fp.peak_xy_m)} peaks; "
+                   f"{size / 1024:.1f} KiB -> {output}")
 
 
 @mm.command("train")
@@ -153,8 +154,10 @@ def track(
     fingerprints: Optional[Path] = typer.Option(None, "--fingerprints", help="Fingerprint file (adds f3/f4)."),
     start: Optional[str] = typer.Option(None, "--start", help="Known start 'X,Y' in metres (floor frame); default: unknown (uniform)."),
     heading: str = typer.Option("rotation_vector", "--heading", help="Heading source: rotation_vector or gyro_mag."),
+    wifi_method: str = typer.Option("hybrid", "--wifi-method", help="WiFi position from fingerprints: hybrid, knn or pathloss."),
+    estimate: str = typer.Option("mean", "--estimate", help="Rows: 'mean' (smoothed posterior mean) or 'viterbi' (most likely path)."),
 ) -> None:
-    """Track a walk: offline Viterbi path, one row per step, with the 1σ error ellipse."""
+    """Track a walk: one row per step with the smoothed position and its 1σ error ellipse."""
     with _user_errors():
         import numpy as np
 
@@ -163,9 +166,9 @@ def track(
         from posefix.mapmatch.model import load_model
 
         model = load_model(model_path)
-        fp = load_fingerprints(fingerprints) if fingerprints else None
+        fp = load_fingerprints(fingerprints, method=wifi_method) if fingerprints else None
         xy = _parse_xy(start) if start else None
-        res = track_walk_file(model, walk, start_xy_m=xy, fingerprints=fp, heading=heading)
+        res = track_walk_file(model, walk, start_xy_m=xy, fingerprints=fp, heading=heading, estimate=estimate)
         with _atomic(output, ".csv") as tmp:
             write_track_csv(tmp, res, model.graph.georef)
         typer.echo(f"track: {res.t_ms.size} rows, {1000 * res.time_per_step_s:.2f} ms/step, "

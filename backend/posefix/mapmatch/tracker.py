@@ -205,7 +205,7 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     wifi_at: dict[int, tuple] = {}
     peak_at: dict[int, tuple] = {}
     if fingerprints is not None and len(steps):
-        for t_ms, mean, cov in fingerprints.predict_walk(walk):
+        for t_ms, mean, cov in fingerprints.predict_walk(walk, model.graph.p_xy_m):
             wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (mean, cov)
         for t_ms, xy, sig in fingerprints.peaks_in_walk(walk):
             peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (xy, sig)
