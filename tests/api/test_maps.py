@@ -305,8 +305,16 @@ class TestSuggestions:
     def test_suggestions_then_accept_one_as_suggestion_edit(self, app, client, users):
         rid = upload(client, users["client"], drive_csv(300)).json()["id"]
         r = client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["admin"])
-        assert r.status_code == 200, r.text
-        body = r.json()
+        assert r.status_code == 202, r.text
+        job_id = r.json()["job_id"]
+        assert r.json()["revision"] == 0
+        job = wait_job(app, job_id)
+        assert job["status"] == "succeeded", job
+        body = client.get(f"/api/v1/jobs/{job_id}", headers=users["admin"]).json()["result"]
+        # Asking again for the same revision reuses the finished job.
+        again = client.post(f"/api/v1/runs/{rid}/suggestions", json={"revision": 0}, headers=users["admin"]).json()
+        assert again["job_id"] == job_id and again["status"] == "succeeded"
+        assert body["run_id"] == rid and body["revision"] == 0
         fc = client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["admin"]).json()
         assert len(body["items"]) == len(fc["features"]) and body["osm"] == "helsinki.osm.pbf"
         assert all(it["sigma_m"] > 0 and it["moved_m"] >= 0 for it in body["items"])
@@ -325,6 +333,20 @@ class TestSuggestions:
         assert client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["client"]).status_code == 403
         assert client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["operator"]).status_code == 404
         assert client.post("/api/v1/runs/99999/suggestions", headers=users["admin"]).status_code == 404
+        r = client.post(f"/api/v1/runs/{rid}/suggestions", json={"revision": 5}, headers=users["admin"])
+        assert r.status_code == 404 and r.json()["error"] == "revision_not_found"
+
+    def test_suggestions_without_osm_extract(self, app, client, users, settings, tmp_path):
+        rid = upload(client, users["client"], drive_csv(100)).json()["id"]
+        settings.osm_extract = tmp_path / "missing.osm.pbf"
+        r = client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["admin"])
+        assert r.status_code == 404 and r.json()["error"] == "osm_not_found" and "missing.osm.pbf" in r.json()["detail"]
+
+    def test_run_far_from_the_extract_fails_the_job_with_a_reason(self, app, client, users):
+        rid = upload(client, users["client"], drive_csv(100, lat0=48.85, lon0=2.35)).json()["id"]
+        job_id = client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["admin"]).json()["job_id"]
+        job = wait_job(app, job_id)
+        assert job["status"] == "dead" and "no drive ways" in job["error"]
 
 
 class TestDemoFloor:

@@ -15,7 +15,7 @@ from posefix.maps import repository as repo
 from posefix.maps import service, sessions, suggestions
 from posefix.maps.schemas import (
     FloorPlanList, FloorPlanPublic, SessionCreate, SessionCreated, StepsIn, StepsOut, SuggestionRequest,
-    SuggestionsOut, WalkTrack,
+    SuggestionsJob, SuggestionsOut, WalkTrack,
 )
 from posefix.runs.access import get_visible_run
 from posefix.users.models import Role
@@ -209,12 +209,15 @@ def delete_session(session_id: str, principal: AnyUser) -> Response:
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
-@router.post("/runs/{run_id}/suggestions", response_model=SuggestionsOut, responses=responses(401, 403, 404, 409, 415, 422))
-def run_suggestions(run_id: int, principal: EditorUser, session: SessionDep, settings: SettingsDep,
+@router.post("/runs/{run_id}/suggestions", response_model=SuggestionsJob, status_code=status.HTTP_202_ACCEPTED,
+             responses={**responses(401, 403, 404, 409, 415, 422), 200: {"model": SuggestionsOut, "description":
+                        "(the job's result, at GET /jobs/{job_id}): per keyframe the suggested lon/lat, moved_m, off_road, sigma_m"}})
+def run_suggestions(run_id: int, request: Request, principal: EditorUser, session: SessionDep, settings: SettingsDep,
                     body: SuggestionRequest | None = None) -> dict[str, Any]:
-    """Map-matching suggestions for a run's keyframes against the OpenStreetMap drivable area:
-    per keyframe the matched lon/lat, how far it would move, whether it lies off the road,
-    and the match's 1σ. Accepting one is a move of kind ``suggestion`` (``POST /runs/{id}/edits``)."""
+    """Queue map-matching suggestions for a run's keyframes against the OpenStreetMap drivable
+    area (a job; its result is a ``SuggestionsOut``: per keyframe the matched lon/lat, how far
+    it would move, whether it lies off the road, and the match's 1σ). Accepting one is a move
+    of kind ``suggestion`` in ``POST /runs/{id}/edits``."""
     run = get_visible_run(session, principal, settings, run_id)
     req = body or SuggestionRequest()
-    return suggestions.suggest(session, settings, run, req.revision, req.cell_m)
+    return suggestions.request_suggestions(session, settings, principal, run, req.revision, req.cell_m, wake=_wake(request))

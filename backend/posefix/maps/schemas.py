@@ -124,6 +124,13 @@ class KeyframeSuggestion(BaseModel):
     adjustable: bool = Field(description="the run's rules let an operator move this keyframe")
 
 
+class SuggestionsJob(BaseModel):
+    job_id: int = Field(description="follow with GET /jobs/{id}; its result is a SuggestionsOut")
+    status: str
+    run_id: int
+    revision: int
+
+
 class SuggestionsOut(BaseModel):
     run_id: int
     revision: int

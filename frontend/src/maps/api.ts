@@ -81,6 +81,28 @@ export const mapsApi = {
   trackWalk: (id: number, form: FormData) => call<WalkTrack>("POST", `/api/v1/floorplans/${id}/walks`, form),
   imageUrl: (id: number) => `/api/v1/floorplans/${id}/image`,
   modelUrl: (id: number) => `/api/v1/floorplans/${id}/model`,
-  suggestions: (runId: string) => call<unknown>("POST", `/api/v1/runs/${encodeURIComponent(runId)}/suggestions`, {}),
-  getJob: (id: number) => call<{ status: string; progress: number; message: string | null; last_error: string | null }>("GET", `/api/v1/jobs/${id}`),
+  suggestions: (runId: string) => call<{ job_id: number; status: string; revision: number }>("POST", `/api/v1/runs/${encodeURIComponent(runId)}/suggestions`, {}),
+  getJob: (id: number) => call<JobView>("GET", `/api/v1/jobs/${id}`),
 };
+
+export interface JobView {
+  status: string;
+  progress: number;
+  message: string | null;
+  last_error: string | null;
+  result: unknown;
+}
+
+/** Poll a job until it has finished; its result, or an Error with the job's reason. */
+export async function jobResult(jobId: number, onProgress: (fraction: number, message: string | null) => void, alive: () => boolean = () => true, pollMs = 400, timeoutMs = 120_000): Promise<unknown> {
+  const t0 = Date.now();
+  for (;;) {
+    const job = await mapsApi.getJob(jobId);
+    if (job.status === "succeeded") return job.result;
+    if (job.status === "dead") throw new Error((job.last_error ?? "the job failed").split("\n")[0]);
+    if (!alive()) throw new Error("cancelled");
+    if (Date.now() - t0 > timeoutMs) throw new Error("the job is taking long; try again later");
+    onProgress(job.progress, job.message);
+    await new Promise((r) => setTimeout(r, pollMs));
+  }
+}

@@ -8,7 +8,7 @@ import { describeError } from "../api/errors";
 import type { EditorController } from "../ui/editor/controller";
 import { h } from "../ui/dom";
 import { type EditorState, currentEdits, displayPositions } from "../state/editor";
-import { mapsApi } from "./api";
+import { jobResult, mapsApi } from "./api";
 import { type SuggestionsState, actionAcceptAllSuggestions, actionAcceptSuggestion, pending, suggestionsFC, suggestionsFrom } from "./suggestions";
 
 const SOURCE = "pf-suggestions";
@@ -23,6 +23,7 @@ export class SuggestionsPanel {
   private map: MlMap | null = null;
   private unsub: () => void;
   private lastKey: unknown[] = [];
+  private alive = true;
 
   constructor(private readonly ctl: EditorController, private readonly notify: (text: string) => void) {
     this.fetchBtn = h("button", { type: "button", "data-testid": "suggestions", title: "Match the run to the street map and suggest positions" }, "Suggestions");
@@ -38,6 +39,7 @@ export class SuggestionsPanel {
   }
 
   dispose(): void {
+    this.alive = false;
     this.unsub();
     this.map = null;
   }
@@ -83,7 +85,9 @@ export class SuggestionsPanel {
     this.state = { kind: "loading" };
     this.render(s, true);
     try {
-      const r = suggestionsFrom(await mapsApi.suggestions(this.ctl.runId));
+      const job = await mapsApi.suggestions(this.ctl.runId);
+      const result = await jobResult(job.job_id, (f) => (this.fetchBtn.textContent = `Matching… ${Math.round(f * 100)}%`), () => this.alive);
+      const r = suggestionsFrom(result);
       this.state = { kind: "ready", ...r };
     } catch (err) {
       this.state = { kind: "error", message: `Suggestions failed: ${describeError(err)}` };
