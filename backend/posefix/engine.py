@@ -32,9 +32,10 @@ from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
-from posefix.core.solver import SolverResult, solve, solve_banded
+from posefix.core.solver import SolverResult, solve, solve_banded, solve_local_newton
 
-LOCAL_MARGIN = 30  # keyframes re-optimised beyond those whose terms changed (local solves)
+LOCAL_MARGIN = 30  # keyframes re-optimised beyond those whose terms changed (local solves) ...
+LOCAL_EDGE_M = 0.01  # ... and more (x3 each time) while the keyframes next to the held ones move more than this
 
 __all__ = [
     "CorrectionConfig",
@@ -140,17 +141,35 @@ class Problem:
             image_mask = np.array([bool(s) for s in run.images])
         self._image_mask = image_mask
         self.keyframe_index = self.keyframes_for(np.zeros(0, dtype=np.int64))
+        self.keyframe_index.flags.writeable = False  # shared by every solve on the default keyframes
         self._local_to_anchor: dict[bytes, np.ndarray] = {}
         self._static: dict[bytes, object] = {}
 
     # ----------------------------------------------------------------- keyframes and frames
 
     def keyframes_for(self, required_rows: np.ndarray) -> np.ndarray:
-        """Keyframe rows given rows that must be keyframes (edited or deleted samples)."""
-        kc = self.cfg.keyframes
-        return select_keyframes(
-            self.run.t_s, self.p_enu_m, kc.every_s, kc.every_m, self._image_mask, required_rows
-        )
+        """Keyframe rows given rows that must be keyframes (edited or deleted samples).
+
+        The default keyframes are selected once; required rows are merged into them (and the
+        default array itself is returned when they are all keyframes already, the usual case
+        for edits made in the editor, so cached per-keyframe data stays valid).
+        """
+        required_rows = np.asarray(required_rows, dtype=np.int64)
+        base = getattr(self, "keyframe_index", None)
+        if base is None:
+            kc = self.cfg.keyframes
+            return select_keyframes(
+                self.run.t_s, self.p_enu_m, kc.every_s, kc.every_m, self._image_mask, required_rows
+            )
+        if len(required_rows) == 0:
+            return base
+        if required_rows.min() < 0 or required_rows.max() >= self.run.n:
+            raise ValueError(f"keyframe rows must lie in 0..{self.run.n - 1}")
+        pos = np.minimum(np.searchsorted(base, required_rows), len(base) - 1)
+        missing = required_rows[base[pos] != required_rows]
+        if len(missing) == 0:
+            return base
+        return np.union1d(base, missing)
 
     def local_to_anchor(self, rows: np.ndarray) -> np.ndarray:
         """(m,4) quaternions rotating ENU at each row's position into the anchored ENU frame."""
@@ -161,8 +180,14 @@ class Problem:
         return self._local_to_anchor[key]
 
     def anchored_quat(self, rows: np.ndarray) -> np.ndarray:
-        """Reported orientations of rows, body -> anchored ENU, (m,4)."""
-        return rot.quat_multiply(self.local_to_anchor(rows), self._q_local[rows])
+        """Reported orientations of rows, body -> anchored ENU, (m,4) (cached per row set: read only)."""
+        key = b"q" + np.asarray(rows).tobytes()
+        q = self._local_to_anchor.get(key)
+        if q is None:
+            q = rot.quat_multiply(self.local_to_anchor(rows), self._q_local[rows])
+            q.flags.writeable = False
+            self._local_to_anchor[key] = q
+        return q
 
     def to_enu(self, lon_deg, lat_deg, alt_m) -> np.ndarray:
         return geodesy.geodetic_to_enu(np.atleast_1d(lat_deg), np.atleast_1d(lon_deg), np.atleast_1d(alt_m), self.origin)
@@ -191,8 +216,9 @@ class Problem:
             np.zeros(0, np.int64), empty3, empty3 + 1.0, sigma_rt, sigma_rr, cfg.gravity.sigma,
             loss=cfg.location.loss, loss_scale=cfg.location.loss_scale,
         )
-        if len(self._static) > 8:
+        if len(self._static) > 32:  # a few keyframe sets' worth (about four entries each)
             self._static.clear()
+            self._local_to_anchor.clear()
         self._static[key] = terms
         return terms
 
@@ -203,8 +229,27 @@ class Problem:
             self._static[key] = gnss_steps((g - p_rep)[:, :2], window=step_window(t_s))
         return self._static[key]
 
-    def _location_measurements(self, rows: np.ndarray) -> np.ndarray:
-        return self.p_enu_m[rows] if self.g_enu_m is None else self.g_enu_m[rows]
+    def _location_measurements(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Location measurements on these keyframe rows (k,3), which have a fix (k,), and the
+        measurements with NaN rows where there is none (cached per row set: read only)."""
+        key = b"loc" + rows.tobytes()
+        hit = self._static.get(key)
+        if hit is None:
+            g = self.p_enu_m[rows] if self.g_enu_m is None else self.g_enu_m[rows]
+            has_fix = np.all(np.isfinite(g), axis=1)
+            g_nan = np.where(has_fix[:, None], g, np.nan)
+            for arr in (g, has_fix, g_nan):
+                arr.flags.writeable = False
+            hit = self._static[key] = (g, has_fix, g_nan)
+        return hit
+
+    def _reported_unit_quat(self, rows: np.ndarray) -> np.ndarray:
+        """Reported orientations of these rows as the solver's unit quaternions (w >= 0), cached."""
+        key = b"qrep" + rows.tobytes()
+        q = self._static.get(key)
+        if q is None:
+            q = self._static[key] = rot.normalize_quat(self.anchored_quat(rows))
+        return q
 
     # ----------------------------------------------------------------- solving
 
@@ -238,10 +283,10 @@ class Problem:
         static = self._static_terms(act_rows)
         t_act = self.run.t_s[act_rows]
         p_rep = static.p_rep_m
-        g = self._location_measurements(act_rows)
-        has_fix = np.all(np.isfinite(g), axis=1)
-        if not remove:
-            has_fix &= ~deleted[active]  # a flagged (deleted) keyframe keeps no location term
+        g, has_fix, g_nan = self._location_measurements(act_rows)
+        if not remove and np.any(deleted):
+            has_fix = has_fix & ~deleted[active]  # a flagged (deleted) keyframe keeps no location term
+            g_nan = np.where(has_fix[:, None], g, np.nan)
         edit_kf = np.asarray(edit_kf, dtype=np.int64)
         e_act = new_number[edit_kf]
         edit_c_m = np.asarray(edit_c_m, dtype=float).reshape(-1, 3)
@@ -255,10 +300,10 @@ class Problem:
             frozen = (warm_sol.drift.sigma_b_m**2, warm_sol.drift.tau_s, warm_sol.drift.detected)
         if cfg.drift.enabled and len(e_act):
             drift = estimate_drift(
-                t_act, p_rep, np.where(has_fix[:, None], g, np.nan), e_act, edit_c_m, edit_has_alt,
+                t_act, p_rep, g_nan, e_act, edit_c_m, edit_has_alt,
                 lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
                 cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
-                frozen=frozen, steps=self._gnss_steps(act_rows, t_act, p_rep, np.where(has_fix[:, None], g, np.nan)),
+                frozen=frozen, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan),
             )
         else:
             drift = no_drift(len(act_rows))
@@ -278,15 +323,28 @@ class Problem:
         x0 = self._warm_state(act_rows, p_rep, warm_start)
         result = None
         if local and same_rows and warm_sol.terms is not None and cfg.solver.method == "banded":
-            x, result = self._solve_window(terms, warm_sol.terms, x0)
+            x, result = self._solve_window(terms, warm_sol.terms, x0, warm_sol.solver)
         if result is None:
             x, result = solve(terms, x0, cfg.solver.method, cfg.solver.max_iterations, cfg.solver.ftol)
-        p_sol, theta = T.split_state(x)
-        q_sol = rot.quat_multiply(rot.matrix_to_quat(static.R_rep), rot.exp_quat(theta))
-        # keyframes outside the optimisation keep their reported pose (they leave the output)
-        p_all = self.p_enu_m[index].copy()
-        q_all = self.anchored_quat(index).copy()
-        p_all[active], q_all[active] = p_sol, q_sol
+        q_rep = self._reported_unit_quat(act_rows)
+        window = result.extra.get("window_held")
+        if window is not None and np.array_equal(warm_sol.keyframes.index, index) \
+                and np.array_equal(warm_sol.active, active):
+            # a local solve moved only keyframes lo..hi: start from the previous answer
+            lo, hi = window
+            p_all = warm_sol.keyframes.p_enu_m.copy()
+            q_all = warm_sol.keyframes.q_wxyz.copy()
+            xs = x.reshape(-1, 6)
+            rows_w = np.flatnonzero(active)[lo:hi + 1]
+            p_all[rows_w] = xs[lo:hi + 1, :3]
+            q_all[rows_w] = rot.quat_multiply(q_rep[lo:hi + 1], rot.exp_quat(xs[lo:hi + 1, 3:]))
+        else:
+            p_sol, theta = T.split_state(x)
+            q_sol = rot.quat_multiply(q_rep, rot.exp_quat(theta))
+            # keyframes outside the optimisation keep their reported pose (they leave the output)
+            p_all = self.p_enu_m[index]
+            q_all = self.anchored_quat(index).copy()
+            p_all[active], q_all[active] = p_sol, q_sol
         edited = np.zeros(k, dtype=bool)
         edited[edit_kf] = True
         kfs = KeyframeSet(
@@ -296,8 +354,18 @@ class Problem:
         )
         return Solution(kfs, result, drift, x, active, list(flags or []), terms)
 
-    def _solve_window(self, terms: T.Terms, old: T.Terms, x0: np.ndarray):
-        """Re-optimise only around the keyframes whose terms changed; None if that is most of the run."""
+    def _solve_window(self, terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: SolverResult):
+        """Re-optimise only around the keyframes whose terms changed; None if that is most of the run.
+
+        The window a..b (changed keyframes plus ``LOCAL_MARGIN``) is solved with a held
+        keyframe on each side (lo = a - 1, hi = b + 1) carrying the rest of the run as a
+        boundary condition: a few Gauss-Newton steps from the previous solution (damped
+        Levenberg-Marquardt if they do not settle).  Every term touching a keyframe outside
+        lo..hi involves only states that did not move, so the full problem's cost is the
+        previous solve's cost minus the old window terms' cost plus the new window's
+        (exact up to the tolerance of ``changed_keyframes`` on terms outside the window);
+        no full-length evaluation is needed.
+        """
         changed = T.changed_keyframes(terms, old)
         if changed is None:
             return None, None
@@ -305,33 +373,46 @@ class Problem:
         hit = np.flatnonzero(changed)
         started = time.perf_counter()
         if len(hit) == 0:
-            costs = T.evaluate(terms, x0, with_jac=False).costs()
-            return x0, SolverResult("converged", "nothing changed", 0, costs, costs, time.perf_counter() - started,
-                                    "banded-lm-window")
-        a = max(int(hit[0]) - LOCAL_MARGIN, 0)
-        b = min(int(hit[-1]) + LOCAL_MARGIN, k - 1)
-        if b - a + 1 > 0.5 * k:
-            return None, None
-        # one held keyframe on each side carries the rest of the run as a boundary condition
-        lo, hi = max(a - 1, 0), min(b + 1, k - 1)
-        sub = T.window_terms(terms, lo, hi)
-        fixed = np.zeros(hi - lo + 1, dtype=bool)
-        fixed[0] = lo < a
-        fixed[-1] = hi > b
+            return x0, SolverResult("converged", "nothing changed", 0, dict(old_result.cost_after),
+                                    dict(old_result.cost_after), time.perf_counter() - started,
+                                    "local-window", extra={"window_held": (0, -1)})
         xs = x0.reshape(-1, 6)
-        cfg = self.cfg.solver
-        # a local answer previews a change of metres: stopping when a step gains under 1e-6 of the cost
-        # leaves it within about a centimetre of the window's optimum
-        x_sub, res = solve_banded(sub, xs[lo:hi + 1].ravel(), cfg.max_iterations, max(cfg.ftol, 1e-6), fixed=fixed)
+        margin = LOCAL_MARGIN
+        while True:
+            a = max(int(hit[0]) - margin, 0)
+            b = min(int(hit[-1]) + margin, k - 1)
+            if b - a + 1 > 0.5 * k:
+                return None, None
+            lo, hi = max(a - 1, 0), min(b + 1, k - 1)
+            sub = T.window_terms(terms, lo, hi)
+            fixed = np.zeros(hi - lo + 1, dtype=bool)
+            fixed[0] = lo < a
+            fixed[-1] = hi > b
+            x_sub0 = xs[lo:hi + 1].ravel()
+            out = solve_local_newton(sub, x_sub0, fixed)
+            if out is None:
+                cfg = self.cfg.solver
+                # a local answer previews a change of metres: stopping when a step gains under
+                # 1e-6 of the cost leaves it within about a centimetre of the window's optimum
+                out = solve_banded(sub, x_sub0, cfg.max_iterations, max(cfg.ftol, 1e-6), fixed=fixed)
+            x_sub, res = out
+            # the held keyframes stand in for the rest of the run; if the keyframes beside them
+            # still moved by more than LOCAL_EDGE_M, the change reaches further: widen and redo
+            moved = np.abs(x_sub.reshape(-1, 6)[:, :3] - x_sub0.reshape(-1, 6)[:, :3]).max(axis=1)
+            edge = max(moved[1] if fixed[0] else 0.0, moved[-2] if fixed[-1] else 0.0)
+            if edge <= LOCAL_EDGE_M:
+                break
+            margin *= 3
         x = xs.copy()
         x[lo:hi + 1] = x_sub.reshape(-1, 6)
-        x = x.ravel()
-        before = T.evaluate(terms, x0, with_jac=False).costs()
-        after = T.evaluate(terms, x, with_jac=False).costs()
+        old_window = T.evaluate(T.window_terms(old, lo, hi), x_sub0, with_jac=False).costs()
+        rest = {name: old_result.cost_after[name] - old_window[name] for name in T.TERM_NAMES}
+        before = {name: rest[name] + res.cost_before[name] for name in T.TERM_NAMES}
+        after = {name: rest[name] + res.cost_after[name] for name in T.TERM_NAMES}
         result = SolverResult(res.status, res.message + f" (keyframes {a}..{b} of {k})", res.iterations, before,
-                              after, time.perf_counter() - started, "banded-lm-window",
-                              extra={**res.extra, "window": (a, b)})
-        return x, result
+                              after, time.perf_counter() - started, res.method + "-window",
+                              extra={**res.extra, "window": (a, b), "window_held": (lo, hi)})
+        return x.ravel(), result
 
     def _warm_state(self, act_rows: np.ndarray, p_rep: np.ndarray, warm) -> np.ndarray | None:
         """Initial state from a previous solution: its corrections interpolated in time."""

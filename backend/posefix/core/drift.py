@@ -116,17 +116,26 @@ def edit_offsets(
     """Offsets d_k = g~(t_k) - c_k (m,3) with g~ = p~ + median of (g - p~) over +-window keyframes.
 
     NaN rows of g (no fix) are ignored; a window without any fix gives d = p~ - c.
+    Vectorised over the edits: each window is gathered into an (m, 2 window + 1, 3) block,
+    missing fixes sorted to its end as +inf, and the median read at the middle of the valid part.
     """
-    g_minus_p = g_m - p_rep_m
+    u = g_m - p_rep_m
     k = len(kf_t_s)
-    out = np.empty((len(edit_kf), 3))
-    for n, i in enumerate(np.asarray(edit_kf, dtype=np.int64)):
-        lo, hi = max(i - window, 0), min(i + window + 1, k)
-        local = g_minus_p[lo:hi]
-        local = local[np.all(np.isfinite(local), axis=1)]
-        shift = np.median(local, axis=0) if len(local) else np.zeros(3)
-        out[n] = p_rep_m[i] + shift - edit_c_m[n]
-    return out
+    edit_kf = np.asarray(edit_kf, dtype=np.int64)
+    if len(edit_kf) == 0:
+        return np.zeros((0, 3))
+    rows = edit_kf[:, None] + np.arange(-window, window + 1)[None, :]
+    local = u[np.clip(rows, 0, k - 1)]  # (m, w, 3)
+    valid = (rows >= 0) & (rows < k) & np.all(np.isfinite(local), axis=2)
+    local = np.where(valid[:, :, None], local, np.inf)
+    local.sort(axis=1)
+    n = valid.sum(axis=1)
+    lo = np.maximum((n - 1) // 2, 0)[:, None, None]
+    hi = np.maximum(n // 2, 0)[:, None, None]
+    a = np.take_along_axis(local, np.broadcast_to(lo, (len(n), 1, 3)), axis=1)[:, 0]
+    b = np.take_along_axis(local, np.broadcast_to(hi, (len(n), 1, 3)), axis=1)[:, 0]
+    shift = np.where(n[:, None] > 0, 0.5 * (a + b), 0.0)
+    return p_rep_m[edit_kf] + shift - np.asarray(edit_c_m, dtype=float)
 
 
 def estimate_walk(t_s: np.ndarray, d_h: np.ndarray, noise_var: np.ndarray) -> float:
@@ -440,7 +449,9 @@ def estimate_drift(
         bias[:, :2] += steps.level_m
         seg = np.searchsorted(steps.index, np.arange(k), side="right")
         seg_e = seg[edit_kf]
-        n_between = np.min(np.abs(seg[:, None] - seg_e[None, :]), axis=1)
+        # segments (between steps) from each keyframe's to its nearest edit's (seg_e is sorted)
+        j = np.searchsorted(seg_e, seg)
+        n_between = np.minimum(np.abs(seg - seg_e[np.maximum(j - 1, 0)]), np.abs(seg_e[np.minimum(j, len(seg_e) - 1)] - seg))
         var_h += n_between * steps.sigma_jump_m**2
         big = np.max(np.hypot(*steps.jump_m.T)) ** 2
         var_h = np.where(steps.transition, var_h + big, var_h)

@@ -148,14 +148,19 @@ def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: floa
     moved = np.any(np.abs(new.loc_g_m - old.loc_g_m) > tol_m, axis=1)
     rew = np.any(np.abs(new.loc_w - old.loc_w) > tol_rel * np.abs(old.loc_w), axis=1)
     out[new.loc_idx[moved | rew]] = True
-    old_u = {int(i): (c, w) for i, c, w in zip(old.user_idx, old.user_c_m, old.user_w)}
-    new_u = {int(i): (c, w) for i, c, w in zip(new.user_idx, new.user_c_m, new.user_w)}
-    for i in set(old_u) ^ set(new_u):
-        out[i] = True
-    for i in set(old_u) & set(new_u):
-        (c0, w0), (c1, w1) = old_u[i], new_u[i]
-        if np.any(np.abs(c1 - c0) * np.minimum(w0, w1) > 1e-6) or np.any(w1 != w0):
-            out[i] = True
+    # user terms: an edit added or removed, or moved / re-weighted (vectorised over the edits)
+    both = np.intersect1d(new.user_idx, old.user_idx)
+    out[np.setxor1d(new.user_idx, old.user_idx)] = True
+    if len(both):
+        o_new = np.argsort(new.user_idx, kind="stable")
+        o_old = np.argsort(old.user_idx, kind="stable")
+        i_new = o_new[np.searchsorted(new.user_idx[o_new], both)]
+        i_old = o_old[np.searchsorted(old.user_idx[o_old], both)]
+        c0, w0 = old.user_c_m[i_old], old.user_w[i_old]
+        c1, w1 = new.user_c_m[i_new], new.user_w[i_new]
+        with np.errstate(invalid="ignore"):
+            moved_u = np.any(np.abs(c1 - c0) * np.minimum(w0, w1) > 1e-6, axis=1) | np.any(w1 != w0, axis=1)
+        out[both[moved_u]] = True
     return out
 
 
@@ -286,6 +291,23 @@ def location_jacobian(terms: Terms, e: np.ndarray, s: np.ndarray) -> np.ndarray:
     return dr_de * terms.loc_w[:, None, :]
 
 
+def location_model(terms: Terms, p_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient (m,3) and solver Hessian (m,3,3) of 1/2 rho(|e|^2) w.r.t. each located position.
+
+    Gradient ``W rho'(s) e`` (equal to ``J^T r`` of the rewritten residual); Hessian as in
+    ``location_hessian``.  Used by the local Newton solve, which re-linearises only this term.
+    """
+    e = terms.loc_w * (p_m[terms.loc_idx] - terms.loc_g_m)
+    s = np.einsum("mi,mi->m", e, e)
+    c2 = terms.loss_scale**2
+    d1, d2 = loss_derivatives(s / c2, terms.loss)
+    along = np.maximum(d1 + 2.0 * d2 * s / c2, 0.1 * d1)
+    u = e / np.sqrt(np.maximum(s, 1e-300))[:, None]
+    uu = u[:, :, None] * u[:, None, :]
+    M = d1[:, None, None] * (np.eye(3) - uu) + along[:, None, None] * uu
+    return terms.loc_w * (d1[:, None] * e), M * terms.loc_w[:, :, None] * terms.loc_w[:, None, :]
+
+
 def location_hessian(terms: Terms, p_m: np.ndarray) -> np.ndarray:
     """Second-order model of 1/2 rho(|e|^2) for the solver, (m,3,3) per located keyframe.
 
@@ -411,10 +433,13 @@ def sparse_jacobian(terms: Terms, ev: Evaluation):
     return csr_matrix((vals, (rows, cols)), shape=(int(off[-1]), 6 * k))
 
 
-def normal_equations(terms: Terms, ev: Evaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def normal_equations(
+    terms: Terms, ev: Evaluation, location: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """J^T J as diagonal blocks D (k,6,6) and upper off-diagonal blocks U (k-1,6,6), and J^T r (6k,).
 
-    U[i] couples keyframe i (rows) with keyframe i + 1 (columns).
+    U[i] couples keyframe i (rows) with keyframe i + 1 (columns).  ``location=False`` leaves
+    the location term out (the local Newton solve adds it itself at every step).
     """
     k = terms.n_keyframes
     D = np.zeros((k, 6, 6))
@@ -427,8 +452,9 @@ def normal_equations(terms: Terms, ev: Evaluation) -> tuple[np.ndarray, np.ndarr
 
     # location and user: position blocks only
     # (each keyframe has at most one location and one user term, so fancy-index adds are safe)
-    D[terms.loc_idx, :3, :3] += jac["loc_H"] if "loc_H" in jac else ata(jac["loc_p"], jac["loc_p"])
-    g[terms.loc_idx, :3] += np.einsum("mri,mr->mi", jac["loc_p"], ev.loc_r)
+    if location:
+        D[terms.loc_idx, :3, :3] += jac["loc_H"] if "loc_H" in jac else ata(jac["loc_p"], jac["loc_p"])
+        g[terms.loc_idx, :3] += np.einsum("mri,mr->mi", jac["loc_p"], ev.loc_r)
     D[terms.user_idx, :3, :3] += ata(jac["user_p"], jac["user_p"])
     g[terms.user_idx, :3] += np.einsum("mri,mr->mi", jac["user_p"], ev.user_r)
     if k > 1:
