@@ -12,7 +12,7 @@ import { api } from "../../api/endpoints";
 import { MapAdapter } from "../../map/adapter";
 import { bounds } from "../../map/features";
 import { ModeManager } from "../../modes/manager";
-import { type EditorState, correctionMagnitudes, currentEdits, editCount, keyframeStatuses } from "../../state/editor";
+import { type EditorState, correctionMagnitudes, currentEdits, displayPositions, editCount, keyframeStatuses } from "../../state/editor";
 import type { AppContext } from "../app";
 import { clear, h } from "../dom";
 import { basemapOptions, basemapSwitcher, fetchStyle, initialBasemap, showBasemap } from "./basemap";
@@ -95,6 +95,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   let modes: ModeManager | null = null;
   let popup: Popup | null = null;
   let fitted = false;
+  let closed = false;
 
   function fit(animate = true) {
     const b = bounds(store.get());
@@ -103,7 +104,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   function panTo(i: number) {
     const s = store.get();
     if (!map || !s.doc) return;
-    const p = currentEdits(s).moves.get(i) ?? s.doc.keyframes[i].lonlat;
+    const p = displayPositions(s)[i];
     const px = map.project(p as [number, number]);
     const c = map.getContainer();
     if (px.x < 40 || px.y < 40 || px.x > c.clientWidth - 40 || px.y > c.clientHeight - 40) map.easeTo({ center: p as [number, number], duration: 250 });
@@ -126,6 +127,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   (async () => {
     maplibregl.setWorkerUrl(workerUrl);
     const { style, note } = await fetchStyle();
+    if (closed) return; // left the page while the style was loading
     if (note) mapNote.textContent = note;
     const m = new maplibregl.Map({ container: mapEl, style, center: [24.94, 60.17], zoom: 12, attributionControl: false, dragRotate: true, fadeDuration: 0 });
     map = m;
@@ -162,6 +164,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
     });
   })();
   cleanups.push(() => {
+    closed = true;
     modes?.destroy();
     popup?.remove();
     map?.remove();
