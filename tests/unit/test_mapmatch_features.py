@@ -67,3 +67,38 @@ def test_read_walk_names_file_line_and_field(tmp_path):
     with pytest.raises(WalkFormatError) as ei:
         read_walk(p)
     assert "bad.txt:2: field TYPE_ACCELEROMETER" in str(ei.value)
+
+
+def flat_turning_walk(offset_rad=0.0):
+    """A phone held flat turning at 0.2 rad/s for 10 s (50 Hz), starting pointing north."""
+    from posefix.mapmatch.sensors import Walk
+
+    t = np.arange(0, 10_000, 20, dtype=float)
+    psi = 0.2 * t / 1000.0
+    m_world = np.array([0.0, 20.0, -40.0])  # east, north, up (µT)
+    c, s = np.cos(psi), np.sin(psi)
+    m_dev = np.column_stack([c * m_world[0] + s * m_world[1], -s * m_world[0] + c * m_world[1], np.full_like(psi, m_world[2])])
+    half = (psi + offset_rad) / 2.0
+    rv = np.column_stack([np.zeros_like(psi), np.zeros_like(psi), np.sin(half)])
+    col = lambda a: np.column_stack([t, a])  # noqa: E731
+    acc = col(np.tile([0.0, 0.0, 9.81], (t.size, 1)))
+    gyro = col(np.tile([0.0, 0.0, 0.2], (t.size, 1)))
+    return Walk(path="sim", acc=acc, gyro=gyro, mag=col(m_dev), rotvec=col(rv), wifi=[], waypoints=np.zeros((0, 3))), t, psi
+
+
+def test_heading_from_gyro_and_magnetometer_follows_the_turn():
+    from posefix.mapmatch.sensors import heading_from_gyro_mag
+
+    walk, t, psi = flat_turning_walk()
+    th = heading_from_gyro_mag(walk, t)
+    err = (th - (np.pi / 2 + psi) + np.pi) % (2 * np.pi) - np.pi
+    assert np.max(np.abs(err)) < np.deg2rad(2.0)
+    d = heading_from_rotation_vector(walk.rotvec[:, 1:4]) - (np.pi / 2 + psi)
+    assert np.allclose(np.angle(np.exp(1j * d)), 0.0, atol=1e-9)
+
+
+def test_initial_heading_bias_between_rotation_vector_and_gyro_mag():
+    from posefix.mapmatch.sensors import initial_heading_bias_gyro_mag
+
+    walk, _, _ = flat_turning_walk(offset_rad=np.deg2rad(10.0))
+    assert np.isclose(np.degrees(initial_heading_bias_gyro_mag(walk)), -10.0, atol=1.0)
