@@ -366,7 +366,9 @@ class Problem:
         (exact up to the tolerance of ``changed_keyframes`` on terms outside the window);
         no full-length evaluation is needed.
         """
-        changed = T.changed_keyframes(terms, old)
+        # a location term whose target moved by under a centimetre (its sigma is metres) moves the
+        # solution by less than that: such changes are left to the next full solve
+        changed = T.changed_keyframes(terms, old, tol_m=0.01, tol_rel=0.01)
         if changed is None:
             return None, None
         k = terms.n_keyframes

@@ -173,24 +173,32 @@ def smooth_gauss_markov(t_s: np.ndarray, y: np.ndarray, r_var: np.ndarray, sigma
     """Kalman filter + RTS smoother of a scalar Gauss-Markov process observed at sorted times.
 
     ``x_k+1 = a x_k + w``, ``a = exp(-dt/tau)``, ``var(w) = sigma2 (1 - a^2)`` plus
-    ``q_extra[k] dt`` (jumps).  y (m,) observations with variances r_var (m,).  Returns the
-    smoothed means (m,) and variances (m,).
+    ``q_extra[k] dt`` (jumps).  y (m,) or (m, d) observations (d independent series with the
+    same variances r_var (m,)).  Returns the smoothed means (shaped as y) and variances (m,).
     """
+    y = np.asarray(y, dtype=float)
     m = len(t_s)
     dt = np.diff(t_s)
     a = np.exp(-dt / tau_s)
     Q = sigma2 * (1.0 - a * a) + (0.0 if q_extra is None else np.asarray(q_extra) * dt)
-    xf, Pf = np.empty(m), np.empty(m)
-    xp, Pp = np.empty(m), np.empty(m)
-    x, P = 0.0, sigma2
+    # the variances do not depend on y: one pass serves every column of y (m,) or (m, d)
+    Pf, Pp, K = np.empty(m), np.empty(m), np.empty(m)
+    P = sigma2
     for k in range(m):
         if k:
-            x, P = a[k - 1] * x, a[k - 1] ** 2 * P + Q[k - 1]
-        xp[k], Pp[k] = x, P
-        K = P / (P + r_var[k])
-        x = x + K * (y[k] - x)
-        P = (1.0 - K) * P
-        xf[k], Pf[k] = x, P
+            P = a[k - 1] ** 2 * P + Q[k - 1]
+        Pp[k] = P
+        K[k] = P / (P + r_var[k])
+        P = (1.0 - K[k]) * P
+        Pf[k] = P
+    xf, xp = np.empty(y.shape), np.empty(y.shape)
+    x = np.zeros(y.shape[1:])
+    for k in range(m):
+        if k:
+            x = a[k - 1] * x
+        xp[k] = x
+        x = x + K[k] * (y[k] - x)
+        xf[k] = x
     xs, Ps = xf.copy(), Pf.copy()
     for k in range(m - 2, -1, -1):
         G = Pf[k] * a[k] / Pp[k + 1]
@@ -200,7 +208,7 @@ def smooth_gauss_markov(t_s: np.ndarray, y: np.ndarray, r_var: np.ndarray, sigma
 
 
 def bias_at(kf_t_s, t_e, mean, var, sigma2: float, tau_s: float, q_jump=None):
-    """Bias mean (k,) and variance (k,) at keyframe times from the smoothed values at edits.
+    """Bias mean (k,) or (k, d) and variance (k,) at keyframe times from the smoothed values at edits.
 
     Between edits a, b: the Gauss-Markov bridge ``mu = w_a x_a + w_b x_b`` with
     ``w_a = (c_a - c_b c_ab)/(1 - c_ab^2)``, ``w_b = (c_b - c_a c_ab)/(1 - c_ab^2)``,
@@ -210,12 +218,18 @@ def bias_at(kf_t_s, t_e, mean, var, sigma2: float, tau_s: float, q_jump=None):
     ``mu = c x_end``, variance ``sigma2 (1 - c^2) + c^2 P_end``.
     """
     t = np.asarray(kf_t_s, dtype=float)
-    mu = np.zeros(len(t))
+    mean = np.asarray(mean, dtype=float)
+    cols = mean.shape[1:]  # the bias of several axes at once shares every weight
+
+    def col(w):
+        return w.reshape(w.shape + (1,) * len(cols))
+
+    mu = np.zeros((len(t),) + cols)
     v = np.full(len(t), sigma2)
     before, after = t < t_e[0], t > t_e[-1]
     for sel, t_end, x_end, p_end in ((before, t_e[0], mean[0], var[0]), (after, t_e[-1], mean[-1], var[-1])):
         c = np.exp(-np.abs(t[sel] - t_end) / tau_s)
-        mu[sel] = c * x_end
+        mu[sel] = col(c) * x_end
         v[sel] = sigma2 * (1.0 - c * c) + c * c * p_end
     inside = ~(before | after)
     if len(t_e) == 1:
@@ -228,7 +242,7 @@ def bias_at(kf_t_s, t_e, mean, var, sigma2: float, tau_s: float, q_jump=None):
     cab = np.exp(-(tb - ta) / tau_s)
     den = np.maximum(1.0 - cab * cab, 1e-12)
     wa, wb = (ca - cb * cab) / den, (cb - ca * cab) / den
-    mu[inside] = wa * mean[j] + wb * mean[j + 1]
+    mu[inside] = col(wa) * mean[j] + col(wb) * mean[j + 1]
     vi = sigma2 * np.maximum(1.0 - wa * ca - wb * cb, 0.0) + wa * wa * var[j] + wb * wb * var[j + 1]
     if q_jump is not None:
         vi = vi + np.asarray(q_jump)[j] * (ti - ta) * (tb - ti) / np.maximum(tb - ta, 1e-9)
@@ -417,10 +431,8 @@ def estimate_drift(
     q_jump = local_walk(t_e, d[:, :2], noise_h, q) - q
     bias = np.zeros((k, 3))
     var_h = np.zeros(k)
-    for axis in (0, 1):
-        xs, Ps = smooth_gauss_markov(t_e, d[:, axis], noise_h, sigma2, tau, q_jump)
-        bias[:, axis], v = bias_at(kf_t_s, t_e, xs, Ps, sigma2, tau, q_jump)
-        var_h += 0.5 * v
+    xs, Ps = smooth_gauss_markov(t_e, d[:, :2], noise_h, sigma2, tau, q_jump)  # both axes at once
+    bias[:, :2], var_h = bias_at(kf_t_s, t_e, xs, Ps, sigma2, tau, q_jump)
     has_v = np.isfinite(d[:, 2])
     if np.any(has_v):
         xs, Ps = smooth_gauss_markov(t_e[has_v], d[has_v, 2], noise_v[has_v], sigma2, tau)

@@ -190,7 +190,7 @@ def solve_local_newton(
     x0: np.ndarray,
     fixed: np.ndarray | None = None,
     max_steps: int = 8,
-    step_tol_m: float = 0.01,
+    step_tol_m: float = 0.02,
 ) -> tuple[np.ndarray, SolverResult] | None:
     """Newton steps from a warm start with only the location term re-linearised (one more edit).
 
@@ -206,7 +206,7 @@ def solve_local_newton(
     and ``g_loc, H_loc`` the location term's gradient and Newton Hessian
     (``terms.location_model``), until a step moves no position by more than ``step_tol_m``;
     the steps shrink by a factor of 20 or more each near the optimum, so the answer is then
-    within about half a millimetre of it.  The true cost is evaluated once at the end.
+    within about a millimetre of it.  The true cost is evaluated once at the end.
 
     Returns None when the steps do not settle within ``max_steps`` or do not lower the
     cost (a far start: use ``solve_banded``).  ``fixed`` holds keyframes at ``x0``.
