@@ -235,3 +235,36 @@ class TestStatus:
         client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "accept": True}, headers=users["reviewer"])
         run = client.get(f"/api/v1/runs/{rid}", headers=users["admin"]).json()
         assert run["status"] == "accepted" and run["verified"] is True and run["adjusted"] is False
+
+
+class TestPreviewCache:
+    def test_keyframes_request_presolves_head_revision_for_editors(self, client, users):
+        import time
+
+        from posefix.runs import correction
+
+        rid = new_run(client, users)
+        run = client.get(f"/api/v1/runs/{rid}", headers=users["client"]).json()
+        client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["client"])
+        time.sleep(0.3)
+        assert correction.PROBLEMS.solution(rid, run["rules"], 0) is None  # a client does not edit
+        client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["admin"])
+        deadline = time.monotonic() + 30
+        while correction.PROBLEMS.solution(rid, run["rules"], 0) is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+
+    def test_drag_frames_agree_with_a_cold_solve(self, client, users, app):
+        from posefix.runs import correction
+
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["admin"], rid)
+        frames = []
+        for i in range(4):
+            m = {"index": 30, "lon": xy[30, 0] + (2 + i) * METRE_LON, "lat": xy[30, 1]}
+            frames.append(client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [m]}, headers=users["admin"]).json())
+        correction.PROBLEMS.forget_all()
+        cold = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [m]}, headers=users["admin"]).json()
+        a, b = np.array(frames[-1]["positions"]), np.array(cold["positions"])
+        diff_m = correction.horizontal_distance_m(a[:, 0], a[:, 1], b[:, 0], b[:, 1]).max()
+        assert diff_m < 0.05
