@@ -75,12 +75,18 @@ def build(
 ) -> None:
     """Build a floor graph (one vertex per walkable cell) and save the model."""
     with _user_errors():
-        from posefix.mapmatch.api import build_model
-        from posefix.mapmatch.model import save_model
+        from tqdm import tqdm
+
+        from posefix.mapmatch.floorplan import load_ilc_floor
+        from posefix.mapmatch.graph import build_graph
+        from posefix.mapmatch.model import Model, save_model
 
         t0 = time.perf_counter()
-        model = build_model(floor, cell_m=cell_m, reach_m=reach_m, raster_m=raster_m,
-                            min_component_m2=min_component_m2, shops_walkable=shops_walkable)
+        with tqdm(total=2, desc="building", unit="stage") as bar:
+            raster = load_ilc_floor(floor, res_m=raster_m, shops_walkable=shops_walkable)
+            bar.update(1)
+            model = Model(graph=build_graph(raster, cell_m=cell_m, reach_m=reach_m, min_component_m2=min_component_m2))
+            bar.update(1)
         dt = time.perf_counter() - t0
         with _atomic(output, ".npz") as tmp:
             size = save_model(model, tmp)
@@ -160,6 +166,7 @@ def track(
     """Track a walk: one row per step with the smoothed position and its 1σ error ellipse."""
     with _user_errors():
         import numpy as np
+        from tqdm import tqdm
 
         from posefix.mapmatch.api import track_walk_file, write_track_csv
         from posefix.mapmatch.fingerprints import load_fingerprints
@@ -168,7 +175,15 @@ def track(
         model = load_model(model_path)
         fp = load_fingerprints(fingerprints, method=wifi_method) if fingerprints else None
         xy = _parse_xy(start) if start else None
-        res = track_walk_file(model, walk, start_xy_m=xy, fingerprints=fp, heading=heading, estimate=estimate)
+        bar = tqdm(desc="tracking", unit="step")
+
+        def on_step(i: int, n: int) -> None:
+            bar.total = n
+            bar.update(i - bar.n)
+
+        res = track_walk_file(model, walk, start_xy_m=xy, fingerprints=fp, heading=heading, estimate=estimate,
+                              on_step=on_step)
+        bar.close()
         with _atomic(output, ".csv") as tmp:
             write_track_csv(tmp, res, model.graph.georef)
         typer.echo(f"track: {res.t_ms.size} rows, {1000 * res.time_per_step_s:.2f} ms/step, "

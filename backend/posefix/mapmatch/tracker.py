@@ -18,6 +18,7 @@ active set. It is off (0) by default because the beam already keeps steps fast h
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -184,7 +185,8 @@ def smooth(tracker: Tracker) -> tuple[np.ndarray, list[GaussianSummary]]:
 
 
 def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, fingerprints=None,
-               heading: str = "rotation_vector", estimate: str = "mean") -> TrackResult:
+               heading: str = "rotation_vector", estimate: str = "mean",
+               on_step: Callable[[int, int], None] | None = None) -> TrackResult:
     """Track a parsed :class:`posefix.mapmatch.sensors.Walk` (its waypoints are not read).
 
     ``fingerprints``: an optional :class:`posefix.mapmatch.fingerprints.FingerprintMap`
@@ -217,6 +219,8 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
         tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi_at.get(i), peak=peak_at.get(i))
         pts.append(tp.summary)
         online.append(tr.p_xy_m[tp.vertex])
+        if on_step is not None:
+            on_step(i + 1, len(steps))
     path = tr.best_path()
     online_s = time.process_time() - tic
     p_out = tr.p_xy_m[path]
