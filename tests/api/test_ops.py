@@ -73,3 +73,28 @@ class TestSettings:
         (tmp_path / ".env").write_text("POSEFIX_LOGIN_MAX_FAILURES=9\n")
         monkeypatch.chdir(tmp_path)
         assert Settings().login_max_failures == 9
+
+
+class TestLogs:
+    def test_access_log_is_json_with_request_id(self, app, client):
+        import io
+        import json
+        import logging
+
+        from posefix.main import JsonFormatter
+
+        buf = io.StringIO()
+        handler = logging.StreamHandler(buf)
+        handler.setFormatter(JsonFormatter())
+        logger = logging.getLogger("posefix.http")
+        logger.addHandler(handler)
+        old = logger.level
+        logger.setLevel(logging.INFO)
+        try:
+            client.get("/healthz", headers={"X-Request-ID": "req-42"})
+        finally:
+            logger.removeHandler(handler)
+            logger.setLevel(old)
+        line = json.loads(buf.getvalue().strip().splitlines()[-1])
+        assert line["request_id"] == "req-42" and line["path"] == "/healthz" and line["status"] == 200
+        assert line["level"] == "info" and "duration_ms" in line and line["time"].endswith("Z")
