@@ -518,7 +518,7 @@ class Problem:
         # own ENU (neighbouring keyframes' frames differ by micro-radians) and interpolate those
         r = self.local_to_anchor(act)
         c_local = rot.quat_multiply(rot.quat_conjugate(r), rot.quat_multiply(c_kf, r))
-        q_new = interpolate_rotations(c_local, seg, alpha, then_multiply_wxyz=self._q_local)
+        q_new = interpolate_rotations(c_local, seg, alpha, then_multiply_wxyz=self._q_local, kf_index=act)
         lat, lon, alt = geodesy.enu_to_geodetic(p_new, self.origin)
         out = self.run.with_poses(lat, lon, alt, q_new)
         deleted_rows = rows_of_keyframes(kfs.index, n, np.flatnonzero(kfs.deleted))

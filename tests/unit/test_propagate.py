@@ -74,3 +74,30 @@ def test_rotation_interpolation_matches_slerp_for_small_and_large_steps():
         got = interpolate_rotations(qk, seg, alpha)
         want = rot.slerp_quat(qk[seg], qk[seg + 1], alpha)
         assert np.allclose(np.abs(np.einsum("ni,ni->n", got, want)), 1.0, atol=1e-12)
+
+
+def test_block_evaluation_equals_the_row_by_row_formula():
+    """Runs of equal segments are evaluated block-wise; irregular ones row by row: same numbers."""
+    from posefix.core.propagate import propagate_corrections, segment_blocks
+
+    rng = np.random.default_rng(7)
+    n = 5000
+    t = np.cumsum(rng.uniform(0.005, 0.015, n))
+    p = np.cumsum(rng.normal(0, 0.1, (n, 3)), axis=0)
+    q = rot.normalize_quat(rng.normal(size=(n, 4)))
+    # a regular stretch, a few extra keyframes (edits) that break it, rows before the first keyframe
+    kf = np.unique(np.r_[np.arange(13, n, 100), [777, 2345, 2346, 4100], n - 1])
+    blocks, rest = segment_blocks(kf, n)
+    assert len(blocks) >= 2 and 0 < len(rest) < n // 4
+    kp = p[kf] + rng.normal(0, 2, (len(kf), 3))
+    c = rot.exp_quat(rng.normal(0, 0.2, (len(kf), 3)))  # wide corrections: some segments take true slerp
+    got_p, seg, alpha = propagate_corrections(t, p, kf, kp, c, "time")
+    M = rot.quat_to_matrix(c)
+    a, b = seg, seg + 1
+    chord = (1 - alpha)[:, None] * p[kf[a]] + alpha[:, None] * p[kf[b]]
+    want_p = (1 - alpha)[:, None] * kp[a] + alpha[:, None] * kp[b] + np.einsum("nij,nj->ni", M[a], p - chord)
+    assert np.max(np.abs(got_p - want_p)) < 1e-9
+    blockwise = interpolate_rotations(c, seg, alpha, then_multiply_wxyz=q, kf_index=kf)
+    rowwise = interpolate_rotations(c, seg, alpha, then_multiply_wxyz=q)
+    assert np.max(np.abs(np.abs(np.einsum("ni,ni->n", blockwise, rowwise)) - 1.0)) < 1e-12
+    assert np.max(np.abs(interpolate_rotations(c, seg, alpha, kf_index=kf) - interpolate_rotations(c, seg, alpha))) < 1e-12

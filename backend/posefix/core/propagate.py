@@ -64,8 +64,48 @@ def interpolation_fraction(
     return seg, np.clip(alpha, 0.0, 1.0)
 
 
+MIN_BLOCK_SEGMENTS = 8  # runs of fewer equal-length segments go through the row-wise gather
+
+
+def segment_blocks(kf_index: np.ndarray, n: int) -> tuple[list[tuple[int, int, int]], np.ndarray]:
+    """Runs of consecutive segments with the same number of rows, and the rows outside them.
+
+    Returns ``blocks`` [(first segment s, segments m, rows per segment c)], whose rows
+    ``kf_index[s] .. kf_index[s] + m c - 1`` reshape to (m, c) without any gather (keyframes
+    every S seconds at a constant rate make the whole run one block), and ``rest`` (r,) the
+    other rows (before the first keyframe, the last keyframe and after it, short runs).
+    """
+    kf_index = np.asarray(kf_index, dtype=np.int64)
+    counts = np.diff(kf_index)
+    if len(counts) == 0:
+        return [], np.arange(n)
+    change = np.flatnonzero(np.diff(counts) != 0) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [len(counts)]])
+    blocks = [(int(a), int(b - a), int(counts[a])) for a, b in zip(starts, ends) if b - a >= MIN_BLOCK_SEGMENTS]
+    covered = np.zeros(n, dtype=bool)
+    for a, m, c in blocks:
+        covered[kf_index[a]:kf_index[a] + m * c] = True
+    return blocks, np.flatnonzero(~covered)
+
+
+def _left_product_matrices(q: np.ndarray) -> np.ndarray:
+    """(m,4,4) matrices L(q) with L(q) b = q * b (Hamilton product) for b as a column (w,x,y,z)."""
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([w, -x, -y, -z], -1),
+        np.stack([x, w, -z, y], -1),
+        np.stack([y, z, w, -x], -1),
+        np.stack([z, -y, x, w], -1),
+    ], 1)
+
+
 def interpolate_rotations(
-    q_kf_wxyz: np.ndarray, seg: np.ndarray, alpha: np.ndarray, then_multiply_wxyz: np.ndarray | None = None
+    q_kf_wxyz: np.ndarray,
+    seg: np.ndarray,
+    alpha: np.ndarray,
+    then_multiply_wxyz: np.ndarray | None = None,
+    kf_index: np.ndarray | None = None,
 ) -> np.ndarray:
     """Slerp of keyframe quaternions (k,4) to rows (n,4): ``q_a Exp(alpha Log(q_a^-1 q_b))``.
 
@@ -73,7 +113,11 @@ def interpolate_rotations(
     than 0.05 rad (equal to slerp within 1e-8 rad there, and several times cheaper), with
     true slerp on the rows of the other segments.  With ``then_multiply_wxyz`` (n,4) the
     result is the product ``slerp * then_multiply`` (done column-wise, without temporaries
-    of shape (n,4,4)).
+    of shape (n,4,4)).  With ``kf_index`` (the keyframe rows that gave ``seg``) runs of
+    equal segments are done block-wise: the normalised interpolation is
+    ``(q_a + alpha dq) / |q_a + alpha dq|`` and its product with b is
+    ``(L(q_a) b + alpha L(dq) b) / |q_a + alpha dq|`` (L the left-product matrix, linear in
+    q), two small matrix products per segment instead of a gather of 8 values per row.
     """
     q = np.asarray(q_kf_wxyz, dtype=float)
     n = len(seg)
@@ -85,24 +129,49 @@ def interpolate_rotations(
     flip = np.cumsum(np.einsum("ki,ki->k", q[:-1], q[1:]) < 0) % 2 == 1
     q[1:][flip] *= -1.0
     qa, qb = q[:-1], q[1:]
-    table = np.ascontiguousarray(np.concatenate([qa, qb - qa], axis=1).T)  # (8, k-1)
-    G = np.take(table, seg, axis=1)
-    w, x, y, z = (G[i] + alpha * G[4 + i] for i in range(4))
-    inv = 1.0 / np.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w * inv, x * inv, y * inv, z * inv
     angle = 2.0 * np.arccos(np.clip(np.abs(np.einsum("ki,ki->k", qa, qb)), 0.0, 1.0))
-    wide = np.flatnonzero(angle[seg] > 0.05)
-    if len(wide):
-        exact = rot.slerp_quat(qa[seg[wide]], qb[seg[wide]], alpha[wide])
-        w[wide], x[wide], y[wide], z[wide] = exact.T
-    if then_multiply_wxyz is None:
-        return np.stack([w, x, y, z], axis=1)
-    bw, bx, by, bz = np.asarray(then_multiply_wxyz, dtype=float).T
+    b_q = None if then_multiply_wxyz is None else np.asarray(then_multiply_wxyz, dtype=float)
+    blocks, rest = segment_blocks(kf_index, n) if kf_index is not None else ([], np.arange(n))
     out = np.empty((n, 4))
-    out[:, 0] = w * bw - x * bx - y * by - z * bz
-    out[:, 1] = w * bx + x * bw + y * bz - z * by
-    out[:, 2] = w * by - x * bz + y * bw + z * bx
-    out[:, 3] = w * bz + x * by - y * bx + z * bw
+    if blocks:
+        dq = qb - qa
+        LT = np.concatenate([np.swapaxes(_left_product_matrices(qa), 1, 2),
+                             np.swapaxes(_left_product_matrices(dq), 1, 2)], axis=1)  # (k-1, 8, 4)
+        n0, n1, n2 = np.einsum("ki,ki->k", qa, qa), 2.0 * np.einsum("ki,ki->k", qa, dq), np.einsum("ki,ki->k", dq, dq)
+        for s, m, c in blocks:
+            rows = slice(int(kf_index[s]), int(kf_index[s]) + m * c)
+            A = alpha[rows].reshape(m, c)
+            inv = 1.0 / np.sqrt(n0[s:s + m, None] + A * (n1[s:s + m, None] + A * n2[s:s + m, None]))
+            blk = out[rows].reshape(m, c, 4)
+            if b_q is None:
+                np.add(qa[s:s + m, None, :], A[:, :, None] * dq[s:s + m, None, :], out=blk)
+            else:
+                # one batched product: [b, alpha b] (m, c, 8) @ [L(q_a)^T; L(dq)^T] (m, 8, 4)
+                X = np.empty((m * c, 8))
+                X[:, :4] = b_q[rows]
+                np.multiply(X[:, :4], alpha[rows][:, None], out=X[:, 4:])
+                np.matmul(X.reshape(m, c, 8), LT[s:s + m], out=blk)
+            blk *= inv[:, :, None]
+    if len(rest):
+        sr, ar = seg[rest], alpha[rest]
+        table = np.ascontiguousarray(np.concatenate([qa, qb - qa], axis=1).T)  # (8, k-1)
+        G = np.take(table, sr, axis=1)
+        w, x, y, z = (G[i] + ar * G[4 + i] for i in range(4))
+        inv = 1.0 / np.sqrt(w * w + x * x + y * y + z * z)
+        w, x, y, z = w * inv, x * inv, y * inv, z * inv
+        if b_q is None:
+            out[rest] = np.stack([w, x, y, z], axis=1)
+        else:
+            bw, bx, by, bz = b_q[rest].T
+            out[rest, 0] = w * bw - x * bx - y * by - z * bz
+            out[rest, 1] = w * bx + x * bw + y * bz - z * by
+            out[rest, 2] = w * by - x * bz + y * bw + z * bx
+            out[rest, 3] = w * bz + x * by - y * bx + z * bw
+    wide_seg = angle > 0.05
+    if np.any(wide_seg):
+        wide = np.flatnonzero(wide_seg[seg])
+        exact = rot.slerp_quat(qa[seg[wide]], qb[seg[wide]], alpha[wide])
+        out[wide] = exact if b_q is None else rot.quat_multiply(exact, b_q[wide])
     return out
 
 
@@ -124,7 +193,9 @@ def propagate_corrections(
     used for the whole segment (error below 0.1 mm).  Per segment the map is affine,
     ``p_s = M p~_s + o0 + alpha o1`` with ``M = C_a``, ``o0 = p_a - M p~_a`` and
     ``o1 = (p_b - p_a) - M (p~_b - p~_a)``, evaluated column-wise over the rows.
-    The orientation of a row is ``interpolate_rotations(c_kf, seg, alpha) * q~``.
+    The orientation of a row is ``interpolate_rotations(c_kf, seg, alpha) * q~``.  Runs of
+    segments with equal row counts (see ``segment_blocks``) are evaluated as batched 3x3
+    matrix products on reshaped rows; the other rows gather their segment's values.
     """
     t_s = np.asarray(t_s, dtype=float)
     p_rep = np.asarray(p_rep_enu_m, dtype=float)
@@ -142,12 +213,29 @@ def propagate_corrections(
     B = p_rep[kf_index[1:]] - A
     o0 = kf_p[:-1] - np.einsum("kij,kj->ki", M, A)
     o1 = (kf_p[1:] - kf_p[:-1]) - np.einsum("kij,kj->ki", M, B)
-    table = np.ascontiguousarray(np.concatenate([M.reshape(-1, 9), o0, o1], axis=1).T)  # (15, k-1)
-    G = np.take(table, seg, axis=1)
-    px, py, pz = np.ascontiguousarray(p_rep.T)
-    out = np.empty((len(t_s), 3))
-    for j in range(3):
-        out[:, j] = G[3 * j] * px + G[3 * j + 1] * py + G[3 * j + 2] * pz + G[9 + j] + alpha * G[12 + j]
+    n = len(t_s)
+    out = np.empty((n, 3))
+    # runs of equal segments: (m, c, 3) @ M^T per segment, no per-row gather of 15 values
+    blocks, rest = segment_blocks(kf_index, n)
+    MT = np.swapaxes(M, 1, 2)
+    if blocks:
+        # one batched product per block: [p~_s, 1, alpha_s] (m, c, 5) @ [M^T; o0; o1] (m, 5, 3)
+        W = np.concatenate([MT, o0[:, None, :], o1[:, None, :]], axis=1)
+        for s, m, c in blocks:
+            r0 = int(kf_index[s])
+            rows = slice(r0, r0 + m * c)
+            X = np.empty((m * c, 5))
+            X[:, :3] = p_rep[rows]
+            X[:, 3] = 1.0
+            X[:, 4] = alpha[rows]
+            np.matmul(X.reshape(m, c, 5), W[s:s + m], out=out[rows].reshape(m, c, 3))
+    if len(rest):
+        table = np.ascontiguousarray(np.concatenate([M.reshape(-1, 9), o0, o1], axis=1).T)  # (15, k-1)
+        sr, ar = seg[rest], alpha[rest]
+        G = np.take(table, sr, axis=1)
+        px, py, pz = np.ascontiguousarray(p_rep[rest].T)
+        for j in range(3):
+            out[rest, j] = G[3 * j] * px + G[3 * j + 1] * py + G[3 * j + 2] * pz + G[9 + j] + ar * G[12 + j]
     return out, seg, alpha
 
 
@@ -174,4 +262,4 @@ def propagate(
     kf_index = np.asarray(kf_index, dtype=np.int64)
     c_kf = rot.quat_multiply(kf_q_wxyz, rot.quat_conjugate(q_rep[kf_index]))
     p_out, seg, alpha = propagate_corrections(t_s, p_rep_enu_m, kf_index, kf_p_enu_m, c_kf, mode, along_m)
-    return p_out, interpolate_rotations(c_kf, seg, alpha, then_multiply_wxyz=q_rep)
+    return p_out, interpolate_rotations(c_kf, seg, alpha, then_multiply_wxyz=q_rep, kf_index=kf_index)
