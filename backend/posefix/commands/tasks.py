@@ -1,3 +1,78 @@
-"""Commands of the 'tasks' area, registered on posefix.cli.app."""
+"""Commands of the 'tasks' area, registered on posefix.cli.app:
 
-from posefix.cli import app  # noqa: F401
+    posefix tasks maintain     expire leases, auto-approve, expire tasks once (cron-friendly;
+                               the worker also does it every few seconds while work is live)
+    posefix tasks list         tasks with their status and assignment counts
+    posefix tasks operators    operator statistics (accuracy, agreement, throughput)
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated
+
+import typer
+
+from posefix.cli import app
+
+tasks_app = typer.Typer(help="Crowdsourced correction tasks.", no_args_is_help=True)
+app.add_typer(tasks_app, name="tasks")
+
+
+def _db():  # type: ignore[no-untyped-def]
+    from posefix.config import Settings
+    from posefix.db import Database
+
+    settings = Settings()
+    return settings, Database(settings.resolved_database_url)
+
+
+@tasks_app.command("maintain")
+def maintain() -> None:
+    """Return expired leases to the pool, auto-approve due work, expire old tasks (once)."""
+    from posefix.tasks import clock, service
+
+    _settings, db = _db()
+    try:
+        with db.transaction() as s:
+            counts = service.maintain(s, clock.now())
+    finally:
+        db.dispose()
+    typer.echo(json.dumps(counts))
+
+
+@tasks_app.command("list")
+def list_tasks(status: Annotated[str | None, typer.Option(help="only tasks in this status")] = None) -> None:
+    """Tasks, newest first, with assignment counts by status."""
+    from posefix.tasks import repository as repo
+
+    _settings, db = _db()
+    try:
+        with db.transaction(write=False) as s:
+            rows, total = repo.list_tasks(s, None, status, 500, 0)
+            counts = repo.counts_by_status(s, [t.id for t in rows])
+            for t in rows:
+                c = ", ".join(f"{k} {v}" for k, v in sorted(counts[t.id].items())) or "-"
+                typer.echo(f"{t.id:>5}  {t.status:<11} p{t.priority:<4} {t.title[:40]:<40}  {c}")
+    finally:
+        db.dispose()
+    typer.echo(f"{total} task(s)")
+
+
+@tasks_app.command("operators")
+def operators() -> None:
+    """Operator statistics as JSON lines."""
+    from sqlalchemy import select
+
+    from posefix.tasks import service
+    from posefix.users.models import Role, User
+
+    _settings, db = _db()
+    try:
+        with db.transaction(write=False) as s:
+            users = list(s.scalars(select(User).where(User.role == Role.operator).order_by(User.username)))
+            for row in service.operator_stats(s, users):
+                row["qualifications"] = [{"name": q["name"], "value": q["value"]} for q in row["qualifications"]]
+                typer.echo(json.dumps(row, default=str))
+    finally:
+        db.dispose()
