@@ -11,7 +11,7 @@ export function renderHome(main: HTMLElement, ctx: AppContext): void {
       h("h1", {}, `Welcome, ${ctx.user?.username ?? ""}`),
       h("section", { class: "card", "aria-labelledby": "tasks-h" },
         h("h2", { id: "tasks-h" }, "My tasks"),
-        h("p", { class: "muted" }, "Assigned correction tasks will appear here."),
+        h("p", {}, h("a", { href: "#/tasks/work", "data-testid": "home-work" }, "Get your next task"), " — your assignments and statistics are on the Work page."),
       ),
       h("section", { class: "card", "aria-labelledby": "runs-h" }, h("h2", { id: "runs-h" }, "Runs you may edit"), list),
     ),
