@@ -21,7 +21,6 @@ from fastapi import APIRouter, FastAPI, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 from sqlalchemy import text
-from starlette.middleware.base import BaseHTTPMiddleware
 
 from posefix.config import Settings
 from posefix.db import Database
@@ -72,31 +71,51 @@ class Metrics:
         )
 
 
-class RequestContextMiddleware(BaseHTTPMiddleware):
-    """Request id (X-Request-ID in and out), access log line, metrics."""
+class RequestContextMiddleware:
+    """Request id (X-Request-ID in and out), access log line, metrics.
 
-    async def dispatch(self, request: Request, call_next: Any) -> Response:
-        rid = request.headers.get("x-request-id") or uuid.uuid4().hex
-        rid = rid[:64]
-        request.state.request_id = rid
+    A plain ASGI middleware (not BaseHTTPMiddleware): no extra task per request, and
+    streamed responses (exports, SSE) pass through untouched.
+    """
+
+    def __init__(self, app: Any):
+        self.app = app
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope.get("headers") or [])
+        rid = (headers.get(b"x-request-id", b"").decode("latin-1") or uuid.uuid4().hex)[:64]
+        scope.setdefault("state", {})["request_id"] = rid
         start = time.perf_counter()
-        response = await call_next(request)
-        elapsed = time.perf_counter() - start
-        route = request.scope.get("route")
-        route_path = getattr(route, "path", "unmatched")
-        metrics: Metrics = request.app.state.metrics
-        metrics.requests.labels(request.method, route_path, str(response.status_code)).inc()
-        metrics.latency.labels(request.method, route_path).observe(elapsed)
-        response.headers["X-Request-ID"] = rid
-        log.info(
-            "%s %s %s", request.method, request.url.path, response.status_code,
-            extra={
-                "request_id": rid, "method": request.method, "path": request.url.path,
-                "status": response.status_code, "duration_ms": round(elapsed * 1000, 2),
-                "user_id": getattr(request.state, "user_id", None),
-            },
-        )
-        return response
+        status = 500
+
+        async def send_with_id(message: dict[str, Any]) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+                message.setdefault("headers", [])
+                message["headers"] = [*message["headers"], (b"x-request-id", rid.encode("latin-1"))]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_with_id)
+        finally:
+            elapsed = time.perf_counter() - start
+            route_path = getattr(scope.get("route"), "path", "unmatched")
+            method = scope.get("method", "")
+            metrics: Metrics = scope["app"].state.metrics
+            metrics.requests.labels(method, route_path, str(status)).inc()
+            metrics.latency.labels(method, route_path).observe(elapsed)
+            state = scope.get("state", {})
+            log.info(
+                "%s %s %s", method, scope.get("path", ""), status,
+                extra={
+                    "request_id": rid, "method": method, "path": scope.get("path", ""), "status": status,
+                    "duration_ms": round(elapsed * 1000, 2), "user_id": state.get("user_id"),
+                },
+            )
 
 
 def ops_router() -> APIRouter:
