@@ -32,10 +32,11 @@ from tests.e2e.serverkit import chromium, ensure_frontend_built, running_server 
 BUDGET_MS = 1000 / 60
 RULES = "[rules]\nevery_n = 1\nlock_n = 0\nmax_move_m = 0.0\n"
 
-RECORD = """() => { window.__frames = []; window.__rec = true;
-  const tick = (t) => { if (!window.__rec) return; window.__frames.push(t); requestAnimationFrame(tick); };
+# One recorder at a time: a generation number stops the previous loop for good.
+RECORD = """() => { const gen = (window.__gen || 0) + 1; window.__gen = gen; const frames = window.__frames = [];
+  const tick = (t) => { if (window.__gen !== gen) return; frames.push(t); requestAnimationFrame(tick); };
   requestAnimationFrame(tick); }"""
-STOP = "() => { window.__rec = false; return window.__frames; }"
+STOP = "() => { window.__gen += 1; return window.__frames; }"
 
 
 def intervals(frames: list[float]) -> list[float]:

@@ -91,7 +91,9 @@ export class MapAdapter {
       paint: {
         "circle-radius": ["interpolate", ["linear"], ["zoom"], 12, ["match", ["get", "s"], "fixed", 2, 3], 17, ["match", ["get", "s"], "fixed", 4, 7]],
         "circle-color": statusColor as never,
-        "circle-opacity": ["match", ["get", "s"], "deleted", 0.45, 1],
+        // The dragged keyframe is hidden by feature state (no re-tiling of 10,000 points).
+        "circle-opacity": ["case", ["boolean", ["feature-state", "dragging"], false], 0, ["match", ["get", "s"], "deleted", 0.45, 1]],
+        "circle-stroke-opacity": ["case", ["boolean", ["feature-state", "dragging"], false], 0, 1],
         "circle-stroke-color": "#ffffff",
         "circle-stroke-width": ["interpolate", ["linear"], ["zoom"], 12, 0.5, 17, 1.5],
       },
@@ -111,7 +113,12 @@ export class MapAdapter {
         "icon-allow-overlap": true,
         "icon-ignore-placement": true,
       },
-      paint: { "icon-color": statusColor as never, "icon-halo-color": "#fff", "icon-halo-width": 1 },
+      paint: {
+        "icon-color": statusColor as never,
+        "icon-halo-color": "#fff",
+        "icon-halo-width": 1,
+        "icon-opacity": ["case", ["boolean", ["feature-state", "dragging"], false], 0, 1],
+      },
     });
     add({ id: "pf-staging-rubber", type: "line", source: "pf-staging", filter: ["==", ["get", "kind"], "rubber"], paint: { "line-color": "#0ea5e9", "line-width": 2, "line-dasharray": [2, 2] } });
     add({ id: "pf-staging-point", type: "circle", source: "pf-staging", filter: ["==", ["get", "kind"], "point"], paint: { "circle-radius": 8, "circle-color": "#0ea5e9", "circle-stroke-color": "#fff", "circle-stroke-width": 2 } });
@@ -132,12 +139,10 @@ export class MapAdapter {
       this.lastDeps.set(src.id, deps);
     }
     const hide = s.staging ? s.staging.index : null;
-    if (hide !== this.hidden && this.map.getLayer(KEYFRAME_LAYER)) {
+    if (hide !== this.hidden && this.map.getSource("pf-keyframes")) {
       // Hide the dragged keyframe itself; the staging point stands in for it.
-      const f = hide === null ? null : (["!=", ["get", "i"], hide] as never);
-      this.map.setFilter(KEYFRAME_LAYER, f);
-      this.map.setFilter("pf-kf-circle", f);
-      this.map.setFilter("pf-kf-heading", hide === null ? ["!=", ["get", "s"], "fixed"] : (["all", ["!=", ["get", "s"], "fixed"], ["!=", ["get", "i"], hide]] as never));
+      if (this.hidden !== null) this.map.setFeatureState({ source: "pf-keyframes", id: this.hidden }, { dragging: false });
+      if (hide !== null) this.map.setFeatureState({ source: "pf-keyframes", id: hide }, { dragging: true });
       this.hidden = hide;
     }
     this.setVisible("pf-ghost-line", s.showGhost);
