@@ -106,3 +106,19 @@ def test_estimators_on_known_processes():
     assert 0.15 < q < 0.26
     mean, var = smooth_gauss_markov(np.array([0.0, 10.0]), np.array([1.0, 3.0]), np.array([1e-6, 1e-6]), 25.0, 300.0)
     assert np.allclose(mean, [1.0, 3.0], atol=1e-4) and np.all(var < 1e-5)
+
+
+def test_an_offset_switched_on_and_off_between_two_edits_is_taken_out():
+    # the GNSS carries a 12 m offset from 200 s to 350 s; the edits at 50 s and 550 s see no
+    # change, yet the pair of steps (on, then off) is itself the evidence
+    t, p = straight()
+    rng = np.random.default_rng(5)
+    on = ((t > 200) & (t <= 350))[:, None] * np.array([12.0, 0.0, 0.0])
+    g = p + on + rng.normal(0, 2.0, p.shape)
+    edits = np.array([50, 550])
+    d = fit(t, p, g, edits, p[edits] + rng.normal(0, 0.3, (2, 3)))
+    assert d.n_steps == 2
+    inside = (t > 220) & (t < 330)
+    assert np.all(np.abs(d.bias_enu_m[inside, 0] - 12.0) < 1.5)
+    assert np.mean(d.weight[inside]) > 0.2  # not written off (an unconfirmed step leaves about 0.01)
+    assert np.all(np.abs(d.bias_enu_m[(t > 380) & (t < 520), 0]) < 2.0)  # step sizes are estimated to about a metre

@@ -336,23 +336,33 @@ def steps_confirmed_by_edits(steps: GnssSteps, edit_kf: np.ndarray, d_h: np.ndar
         return dataclasses.replace(steps, index=steps.index[:0], jump_m=steps.jump_m[:0],
                                    level_m=np.zeros((k, 2)), transition=np.zeros(k, dtype=bool))
     keep = np.zeros(len(steps.index), dtype=bool)
-    for a, b, da, db in zip(edit_kf[:-1], edit_kf[1:], d_h[:-1], d_h[1:]):
+    jumps = steps.jump_m.copy()
+    # stretches: before the first edit, between consecutive edits, after the last one
+    bounds = [(-1, edit_kf[0], None)] + [(a, b, db - da) for a, b, da, db in
+                                         zip(edit_kf[:-1], edit_kf[1:], d_h[:-1], d_h[1:])] + [(edit_kf[-1], k, None)]
+    for a, b, change in bounds:
         inside = (steps.index > a) & (steps.index <= b)
         n = int(inside.sum())
         if n == 0:
             continue
-        change = db - da
+        total = steps.jump_m[inside].sum(axis=0)
         tol = 3.0 * np.sqrt(2.0 * (2.0 * noise_var + n * steps.sigma_jump_m**2))
-        if np.hypot(*(steps.jump_m[inside].sum(axis=0) - change)) < tol and np.hypot(*change) > tol:
+        if change is not None and np.hypot(*(total - change)) < tol and np.hypot(*change) > tol:
+            keep |= inside  # the edits saw the change the steps add up to
+        elif n >= 2 and np.hypot(*total) < 3.0 * np.sqrt(n) * steps.sigma_jump_m \
+                and (change is None or np.hypot(*change) < tol):
+            # an offset that switched on and off again (an urban canyon entered and left)
+            # within the stretch: the steps cancel, as the edits around them (if any) say;
+            # every step is far beyond the noise, so two false ones cancelling is unlikely
             keep |= inside
     level = np.zeros((k, 2))
     transition = np.zeros(k, dtype=bool)
     W = int(np.ceil(np.count_nonzero(steps.transition) / max(len(steps.index), 1)))
-    for j, J in zip(steps.index[keep], steps.jump_m[keep]):
+    for j, J in zip(steps.index[keep], jumps[keep]):
         level[j:] += J
         transition[max(j - W // 2, 0):min(j + W // 2, k)] = True
     # levels are relative: anchor them so the first edit sees level 0 (the GM part carries the rest)
-    return GnssSteps(steps.index[keep], steps.jump_m[keep], level, transition, steps.sigma_jump_m)
+    return GnssSteps(steps.index[keep], jumps[keep], level, transition, steps.sigma_jump_m)
 
 
 def suspect_intervals(found: GnssSteps, kept: GnssSteps, edit_kf: np.ndarray, k: int) -> np.ndarray:
