@@ -7,8 +7,11 @@ cookie or bearer token), enforce CSRF rules for cookie sessions and check the ro
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
-from typing import Annotated
+from typing import Annotated, Any
+
+import anyio
 from urllib.parse import urlsplit
 
 from fastapi import Depends, Request
@@ -41,6 +44,15 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 DatabaseDep = Annotated[Database, Depends(get_database)]
 # scope="function": commit before the response is sent, so a failed commit is an error response.
 SessionDep = Annotated[Session, Depends(get_session, scope="function")]
+
+
+def solver_limiter(app: Any) -> anyio.CapacityLimiter:
+    """The lane for CPU-bound solves: at most one per CPU, apart from the request threads,
+    so a crowd of dragging operators cannot occupy every thread keyframes and tiles need."""
+    limiter = getattr(app.state, "solver_limiter", None)
+    if limiter is None:
+        limiter = app.state.solver_limiter = anyio.CapacityLimiter(max(os.cpu_count() or 1, 1))
+    return limiter
 
 
 def client_ip(request: Request) -> str:

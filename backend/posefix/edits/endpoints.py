@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
+import anyio
+
 from fastapi import APIRouter, Header, Query, Request
 
-from posefix.deps import AnyUser, EditorUser, SessionDep, SettingsDep
+from posefix.deps import AnyUser, EditorUser, SessionDep, SettingsDep, solver_limiter
 from posefix.edits import repository as edits_repo
 from posefix.edits import service
 from posefix.edits.schemas import (
@@ -36,10 +38,15 @@ def _rev_public(rev: Revision, detail: bool = False) -> RevisionPublic:
 
 
 @router.post("/runs/{run_id}/preview", response_model=PreviewResponse, responses=responses(401, 403, 404, 415, 422))
-def preview(run_id: int, body: PreviewRequest, principal: EditorUser, session: SessionDep, settings: SettingsDep) -> dict[str, Any]:
+async def preview(
+    run_id: int, body: PreviewRequest, request: Request, principal: EditorUser, session: SessionDep, settings: SettingsDep,
+) -> dict[str, Any]:
     """Re-optimise keyframes with proposed, uncommitted edits (refused moves are left out and listed)."""
-    run = get_visible_run(session, principal, settings, run_id)
-    return service.preview(session, settings, run, body.base_revision, body.moves, body.deleted)
+    run = await anyio.to_thread.run_sync(get_visible_run, session, principal, settings, run_id)
+    return await anyio.to_thread.run_sync(
+        lambda: service.preview(session, settings, run, body.base_revision, body.moves, body.deleted),
+        limiter=solver_limiter(request.app),
+    )
 
 
 @router.post("/runs/{run_id}/edits", response_model=EditBatchAccepted, status_code=202, responses=responses(400, 401, 403, 404, 409, 415, 422))

@@ -9,7 +9,9 @@ from fastapi import APIRouter, BackgroundTasks, Query, Request, Response
 from fastapi.responses import FileResponse, StreamingResponse
 from starlette.datastructures import UploadFile
 
-from posefix.deps import AnyUser, OwnerUser, ReviewerUser, SessionDep, SettingsDep, UploaderUser
+import anyio
+
+from posefix.deps import AnyUser, OwnerUser, ReviewerUser, SessionDep, SettingsDep, UploaderUser, solver_limiter
 from posefix.errors import AppError, BadRequest, LengthRequired, PayloadTooLarge, UnsupportedMediaType, responses
 from posefix.runs import images as image_service
 from posefix.runs import repository as repo
@@ -99,7 +101,6 @@ async def upload_run(request: Request, principal: UploaderUser, session: Session
             if not isinstance(item, UploadFile):
                 raise BadRequest("multipart field 'images' must hold files", code="bad_form", extra={"field": "images"})
             image_files.append((item.filename or "", item.file))
-        import anyio
 
         run = await anyio.to_thread.run_sync(
             lambda: service.import_run(
@@ -167,7 +168,10 @@ def get_keyframes(
         # An editor is about to drag: solve this revision now, after the response is sent.
         from posefix.edits.service import prewarm
 
-        background.add_task(prewarm, request.app.state.db, settings, run.id, run.head_revision)
+        async def presolve(app: Any = request.app, run_id: int = run.id, number: int = run.head_revision) -> None:
+            await anyio.to_thread.run_sync(prewarm, app.state.db, settings, run_id, number, limiter=solver_limiter(app))
+
+        background.add_task(presolve)
     return Response(body, media_type="application/geo+json")
 
 
