@@ -89,6 +89,6 @@ export function driftInfo(s: EditorState): HTMLElement {
 export function formatRunTime(t_s: number, t0_s: number): string {
   const rel = `${(t_s - t0_s).toFixed(2)} s into the run`;
   // Times after 2001 are taken as Unix seconds (recorders log either those or seconds from start).
-  if (t_s > 1e9) return `${rel} (${new Date(t_s * 1000).toISOString().replace("T", " ").slice(0, 22)} UTC)`;
+  if (t_s > 1e9) return `${rel} (${new Date(t_s * 1000).toISOString().replace("T", " ").slice(0, 19)} UTC)`;
   return rel;
 }

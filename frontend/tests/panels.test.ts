@@ -1,0 +1,35 @@
+import { describe, expect, it } from "vitest";
+import { loadDoc, perform, setPreview } from "../src/actions/editor";
+import { actionMoveKeyframe } from "../src/actions/edits";
+import { driftFrom } from "../src/api/convert";
+import { currentDrift, currentEdits, editorNew } from "../src/state/editor";
+import { formatRunTime, statusBar, toolbarState } from "../src/ui/editor/panels";
+import { eastOf, straightDoc } from "./fixtures";
+
+describe("status bar and toolbar", () => {
+  const doc = straightDoc();
+  const origin = doc.keyframes[0].reported;
+  it("says revision, unsaved edits and the last solver time", () => {
+    let s = loadDoc(editorNew(), doc);
+    expect(statusBar(s)).toBe("Revision 1 · 0 unsaved edits · solver: —");
+    s = perform(s, actionMoveKeyframe(4, eastOf(origin, 40, 5)));
+    s = setPreview(s, currentEdits(s), doc.keyframes.map((k) => k.lonlat), 0.0234);
+    expect(statusBar(s)).toBe("Revision 1 · 1 unsaved edit · last solver time 23 ms");
+    const tb = toolbarState(s);
+    expect(tb.undo).toEqual({ enabled: true, title: "Undo: Move keyframe 4 (Ctrl+Z)" });
+    expect(tb.redo.enabled).toBe(false);
+    expect(tb.submitEnabled).toBe(true);
+    expect(toolbarState({ ...s, submit: { kind: "sending" } }).submitEnabled).toBe(false);
+  });
+  it("shows the preview's drift estimate while it is current", () => {
+    let s = loadDoc(editorNew(), { ...doc, drift: driftFrom({ offset_enu_m: [null, null, null], spread_m: 0, n_edits: 0 }) });
+    expect(currentDrift(s)?.offset_m).toBeNull();
+    s = perform(s, actionMoveKeyframe(4, eastOf(origin, 40, 5)));
+    s = setPreview(s, currentEdits(s), doc.keyframes.map((k) => k.lonlat), 0.01, driftFrom({ offset_enu_m: [6, 8, 0], spread_m: 1, detected: true, n_edits: 1, max_bias_m: 10 }));
+    expect(currentDrift(s)).toEqual({ offset_m: 10, spread_m: 1, max_bias_m: 10, detected: true, n_edits: 1 });
+  });
+  it("formats run times relative to the start, with UTC for Unix times", () => {
+    expect(formatRunTime(12.5, 2.5)).toBe("10.00 s into the run");
+    expect(formatRunTime(1700000004, 1700000000)).toBe("4.00 s into the run (2023-11-14 22:13:24 UTC)");
+  });
+});
