@@ -100,4 +100,14 @@ describe("floor view geometry", () => {
     expect(reachedWaypoints(track, 1).length).toBe(1);
     expect(reachedWaypoints(track, 2).length).toBe(3);
   });
+
+  it("zooms to a walk: its box with a margin fills the canvas", async () => {
+    const { fitBox, toPx, walkBox } = await import("../src/maps/floorView");
+    const v = fitBox([10, 10, 30, 20], 420, 220, 10);
+    expect(toPx(v, 10, 10)).toEqual([10, 210]);
+    expect(toPx(v, 30, 20)).toEqual([410, 10]);
+    const step = { i: 0, t_ms: 0, x_m: 50, y_m: 40, dr_x_m: 52, dr_y_m: 40, sigma_major_m: 1, sigma_minor_m: 1, angle_deg: 0 };
+    const track = { steps: [step, { ...step, x_m: 100, dr_x_m: 104 }], errors: { n: 0, mean_m: null, median_m: null, p95_m: null, max_m: null, skip_first: false, waypoints: [] }, walk: { file: "w", n_steps: 1, start: "unknown", track_ms: 1, ms_per_step: 1 } };
+    expect(walkBox(track, 5, 30)).toEqual([45, 25, 109, 55]);
+  });
 });

@@ -364,3 +364,21 @@ class TestDemoFloor:
         assert fp["name"] == DEMO_FLOOR_NAME and fp["status"] == "ready" and fp["n_vertices"] > 10000
         r = client.get(f"/api/v1/floorplans/{fid}/model", headers=users["operator"])
         assert len(r.content) == fp["model_bytes"]
+
+
+def test_maps_models_match_migrations(db_url):
+    from alembic.autogenerate import compare_metadata
+    from alembic.migration import MigrationContext
+
+    import posefix.edits.models  # noqa: F401
+    import posefix.maps.models  # noqa: F401
+    from posefix.db import Base, Database
+
+    db = Database(db_url)
+    try:
+        with db.engine.connect() as conn:
+            diffs = compare_metadata(MigrationContext.configure(conn, opts={"compare_type": True}), Base.metadata)
+    finally:
+        db.dispose()
+    text = repr(diffs)
+    assert "floor_plans" not in text and "'edits'" not in text, text

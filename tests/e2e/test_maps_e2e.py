@@ -8,7 +8,7 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-from tests.e2e.helpers import login, open_run
+from tests.e2e.helpers import login, open_run, shot
 
 REPO = Path(__file__).resolve().parents[2]
 FLOOR = REPO / "data" / "indoor-site1-F1"
@@ -53,6 +53,8 @@ def test_floor_upload_replay_walk_and_see_waypoint_errors(server, context, tmp_p
     assert canvas.get_attribute("data-waypoints-reached") == "6"
     assert "last waypoint error" in page.get_by_test_id("replay-step").inner_text()
     assert page.get_by_test_id("replay-play").inner_text().startswith("▶")
+    page.evaluate("window.scrollTo(0, 0)")
+    shot(page, "floor-walk-replay", docs=True)
 
 
 def test_editor_accept_a_suggestion_and_submit(server, context, run_id):
@@ -94,6 +96,7 @@ def test_editor_accept_a_suggestion_and_submit(server, context, run_id):
     page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '1'", timeout=10_000)
     assert f"keyframe {pick[0]}" in page.get_by_test_id("notices").inner_text()
     page.wait_for_function("document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)
+    shot(page, "editor-suggestions", docs=True)
 
     page.get_by_test_id("submit").click()
     page.wait_for_function("document.querySelector('.editor').dataset.revision === '1'", timeout=60_000)

@@ -7,8 +7,8 @@
 import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/app";
 import { clear, fmtTime, h } from "../ui/dom";
-import { type FloorPlan, type WalkTrack, mapsApi } from "./api";
-import { ellipsePx, fitView, fmtM, reachedWaypoints, toPx } from "./floorView";
+import { type FloorPlan, type WalkTrack, jobResult, mapsApi } from "./api";
+import { ellipsePx, fitBox, fmtM, reachedWaypoints, toPx, walkBox } from "./floorView";
 import "./maps.css";
 
 const STEP_MS = 200;
@@ -72,8 +72,9 @@ function renderFloorList(main: HTMLElement, ctx: AppContext): () => void {
       try {
         const fp = await mapsApi.uploadFloor(fd);
         await load();
-        await followJob(fp, (t) => (msg.textContent = t), () => alive);
-        await load();
+        const done = await followJob(fp, (t) => (msg.textContent = t), () => alive);
+        await load(); // the list shows the new status before the message says so
+        msg.textContent = done;
       } catch (err) {
         msg.textContent = `Upload refused: ${describeError(err)}`;
       } finally {
@@ -90,20 +91,14 @@ function renderFloorList(main: HTMLElement, ctx: AppContext): () => void {
   };
 }
 
-async function followJob(fp: FloorPlan, say: (t: string) => void, alive: () => boolean): Promise<void> {
-  if (fp.job_id === null) return;
-  for (let i = 0; i < 600 && alive(); i++) {
-    const job = await mapsApi.getJob(fp.job_id);
-    if (job.status === "succeeded") {
-      say(`Model of “${fp.name}” built.`);
-      return;
-    }
-    if (job.status === "dead") {
-      say(`The model could not be built: ${job.last_error ?? "unknown error"}`);
-      return;
-    }
-    say(`Building the model… ${Math.round(job.progress * 100)}%${job.message ? ` (${job.message})` : ""}`);
-    await new Promise((r) => setTimeout(r, 300));
+/** Follow the model job; returns the sentence to show when it has finished. */
+async function followJob(fp: FloorPlan, say: (t: string) => void, alive: () => boolean): Promise<string> {
+  if (fp.job_id === null) return `“${fp.name}” uploaded.`;
+  try {
+    await jobResult(fp.job_id, (f, m) => say(`Building the model… ${Math.round(f * 100)}%${m ? ` (${m})` : ""}`), alive, 300, 300_000);
+    return `Model of “${fp.name}” built.`;
+  } catch (err) {
+    return `The model could not be built: ${(err as Error).message}`;
   }
 }
 
@@ -114,6 +109,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   let track: WalkTrack | null = null;
   let step = 0;
   let image: HTMLImageElement | null = null;
+  let zoomed = false; // to the walk, or the whole floor
 
   const title = h("h1", {}, "Floor plan");
   const meta = h("p", { class: "floor-meta", "data-testid": "floor-meta" });
@@ -126,6 +122,12 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   const play = h("button", { type: "button", "data-testid": "replay-play", disabled: true }, "▶ Play");
   const scrub = h("input", { type: "range", min: "0", max: "0", value: "0", "aria-label": "Step", "data-testid": "replay-scrub", disabled: true });
   const stepLabel = h("span", { "data-testid": "replay-step" }, "");
+  const zoomBtn = h("button", { type: "button", "data-testid": "floor-zoom", disabled: true }, "Whole floor");
+  zoomBtn.addEventListener("click", () => {
+    zoomed = !zoomed;
+    zoomBtn.textContent = zoomed ? "Whole floor" : "Zoom to walk";
+    draw();
+  });
   const summary = h("div", { class: "walk-summary", "data-testid": "walk-summary" });
   const errTable = h("tbody", { "data-testid": "walk-errors" });
   const legend = h("ul", { class: "floor-legend" },
@@ -137,7 +139,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     h("p", {}, h("a", { href: "#/floors" }, "← Floor plans")), title, meta,
     h("div", { class: "floor-body" },
       h("div", { class: "floor-left" }, canvas,
-        h("div", { class: "replay", role: "group", "aria-label": "Replay" }, play, scrub, stepLabel)),
+        h("div", { class: "replay", role: "group", "aria-label": "Replay" }, play, scrub, stepLabel, zoomBtn)),
       h("aside", { class: "floor-side" },
         h("h2", {}, "Track a walk"), h("p", {}, "A walk in the competition's path-file format (.txt)."), walkFile, start, trackBtn, msg,
         summary, legend,
@@ -146,7 +148,8 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   function draw() {
     const c = canvas.getContext("2d");
     if (!c || !fp) return;
-    const v = fitView(fp.width_m, fp.height_m, canvas.width, canvas.height);
+    const box: [number, number, number, number] = zoomed && track ? walkBox(track) : [0, 0, fp.width_m, fp.height_m];
+    const v = fitBox(box, canvas.width, canvas.height);
     c.clearRect(0, 0, canvas.width, canvas.height);
     c.fillStyle = "#f8fafc";
     c.fillRect(0, 0, canvas.width, canvas.height);
@@ -243,7 +246,9 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     track = t;
     stop();
     scrub.max = String(t.steps.length - 1);
-    scrub.disabled = play.disabled = false;
+    scrub.disabled = play.disabled = zoomBtn.disabled = false;
+    zoomed = true;
+    zoomBtn.textContent = "Whole floor";
     const e = t.errors;
     summary.replaceChildren(
       h("p", {}, `${t.walk.file}: ${t.walk.n_steps} steps, tracked in ${t.walk.track_ms.toFixed(0)} ms (${t.walk.ms_per_step.toFixed(2)} ms per step).`),

@@ -13,8 +13,32 @@ export interface View {
 
 /** Fit a `width_m` x `height_m` floor into `w` x `h` px with `pad` px margins. */
 export function fitView(width_m: number, height_m: number, w: number, h: number, pad = 10): View {
-  const scale = Math.min((w - 2 * pad) / width_m, (h - 2 * pad) / height_m);
-  return { scale, ox: (w - width_m * scale) / 2, oy: (h - height_m * scale) / 2, heightPx: h };
+  return fitBox([0, 0, width_m, height_m], w, h, pad);
+}
+
+/** Fit the box [x0, y0, x1, y1] (metres) into `w` x `h` px, centred, keeping the aspect. */
+export function fitBox(box: readonly [number, number, number, number], w: number, h: number, pad = 10): View {
+  const [x0, y0, x1, y1] = box;
+  const bw = Math.max(x1 - x0, 1e-6);
+  const bh = Math.max(y1 - y0, 1e-6);
+  const scale = Math.min((w - 2 * pad) / bw, (h - 2 * pad) / bh);
+  return { scale, ox: (w - bw * scale) / 2 - x0 * scale, oy: (h - bh * scale) / 2 - y0 * scale, heightPx: h };
+}
+
+/** Bounding box of a walk (matched, dead reckoning, waypoints) with a margin (m), at least `minSide_m` a side. */
+export function walkBox(track: WalkTrack, margin_m = 8, minSide_m = 30): [number, number, number, number] {
+  const xs: number[] = [];
+  const ys: number[] = [];
+  for (const s of track.steps) xs.push(s.x_m, s.dr_x_m), ys.push(s.y_m, s.dr_y_m);
+  for (const w of track.errors.waypoints) xs.push(w.x_m), ys.push(w.y_m);
+  let [x0, x1, y0, y1] = [Math.min(...xs) - margin_m, Math.max(...xs) + margin_m, Math.min(...ys) - margin_m, Math.max(...ys) + margin_m];
+  const grow = (lo: number, hi: number): [number, number] => {
+    const d = Math.max(0, minSide_m - (hi - lo)) / 2;
+    return [lo - d, hi + d];
+  };
+  [x0, x1] = grow(x0, x1);
+  [y0, y1] = grow(y0, y1);
+  return [x0, y0, x1, y1];
 }
 
 export function toPx(v: View, x: number, y: number): [number, number] {
