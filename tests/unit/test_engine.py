@@ -214,3 +214,22 @@ def test_sideways_motion_a_vehicle_cannot_make_is_measured():
     assert excess[2] == pytest.approx(3.5)
     assert np.all(excess[[0, 1, 3, 4]] == 0.0)
     assert np.all(implausible_motion_m(p, q, np.ones(k - 1), 0.0) == 0.0)  # check off
+
+
+def test_a_local_solve_of_one_more_edit_lands_near_the_full_solve():
+    sim = simulate(duration_s=1999.0, rate_hz=1.0, edit_every_s=100.0, seed=4, regime="white")
+    moves = [Move(e.t_s, e.lat_deg, e.lon_deg, None) for e in sim.edits]
+    new = moves.pop(9)  # the next edit lands mid-run
+    problem = prepare(sim.run)
+    prev = problem.solve(EditSet(moves=moves))
+    edits = EditSet(moves=moves + [new])
+    local = problem.solve(edits, warm_start=prev, local=True)
+    full = problem.solve(edits, warm_start=prev)
+    assert "window" in local.solver.method and local.solver.extra["window"][1] - local.solver.extra["window"][0] < 1000
+    gap = np.hypot(*(local.keyframes.p_enu_m - full.keyframes.p_enu_m)[:, :2].T)
+    assert np.max(gap) < 0.05, np.max(gap)
+    # the cost it reports (previous cost outside the window + the window's) is the full problem's
+    from posefix.core import terms as T
+
+    assert abs(T.cost(full.terms, local.x) - local.solver.cost) <= 1e-6 * local.solver.cost
+    assert full.solver.cost * (1 - 1e-9) <= local.solver.cost <= full.solver.cost * (1 + 1e-3)

@@ -185,6 +185,45 @@ def _position_band_index() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     return BAND_U + a[upper] - b[upper], b[upper], a[upper], b[upper]
 
 
+def _newton_on_linearised(terms: T.Terms, ev: T.Evaluation, x_lin: np.ndarray, fixed, max_steps: int,
+                          step_tol_m: float) -> tuple[np.ndarray | None, int]:
+    """Inner loop of ``solve_local_newton``: other terms fixed at their model at ``x_lin``."""
+    D, U, g_c = T.normal_equations(terms, ev, location=False)
+    loc_idx = terms.loc_idx
+    loc_free = np.ones(len(loc_idx), dtype=bool)
+    if fixed is not None:
+        D[fixed] = np.eye(6)
+        U[fixed[:-1] | fixed[1:]] = 0.0
+        loc_free = ~fixed[loc_idx]
+    diag = np.einsum("kii->ki", D).ravel()
+    # a hair of damping keeps the factorisation positive definite where a keyframe has only
+    # relative constraints (no fix, no edit)
+    ab_c = pack_banded(D, U, 1e-9 * np.maximum(diag, 1e-12))
+    rows, col_off, ia, ib = _position_band_index()
+    li = loc_idx[loc_free]
+    band_rows = np.broadcast_to(rows, (len(li), len(rows)))
+    band_cols = 6 * li[:, None] + col_off[None, :]
+    g_rows = 6 * li[:, None] + np.arange(3)[None, :]
+    fixed_rows = None if fixed is None else (6 * np.flatnonzero(fixed)[:, None] + np.arange(6)[None, :]).ravel()
+    x = x_lin.copy()
+    for step in range(1, max_steps + 1):
+        g_loc, H_loc = T.location_model(terms, x.reshape(-1, 6)[:, :3])
+        g = g_c + banded_matvec(D, U, x - x_lin)
+        g[g_rows] += g_loc[loc_free]
+        if fixed_rows is not None:
+            g[fixed_rows] = 0.0
+        ab = ab_c.copy()
+        ab[band_rows, band_cols] += H_loc[loc_free][:, ia, ib]
+        try:
+            dx = solveh_banded(ab, -g, check_finite=False)
+        except LinAlgError:
+            return None, step
+        x = x + dx
+        if float(np.max(np.abs(dx.reshape(-1, 6)[:, :3]))) <= step_tol_m:
+            return x, step
+    return None, max_steps
+
+
 def solve_local_newton(
     terms: T.Terms,
     x0: np.ndarray,
@@ -206,60 +245,40 @@ def solve_local_newton(
     and ``g_loc, H_loc`` the location term's gradient and Newton Hessian
     (``terms.location_model``), until a step moves no position by more than ``step_tol_m``;
     the steps shrink by a factor of 20 or more each near the optimum, so the answer is then
-    within about a millimetre of it.  The true cost is evaluated once at the end.
+    within about a millimetre of it.  Should the orientations have moved by more than a
+    milliradian after all, the other terms are linearised again there and the steps go on.
+    The true cost is evaluated once at the end.
 
     Returns None when the steps do not settle within ``max_steps`` or do not lower the
     cost (a far start: use ``solve_banded``).  ``fixed`` holds keyframes at ``x0``.
     """
     started = time.perf_counter()
-    x0 = np.asarray(x0, dtype=float)
-    k = terms.n_keyframes
-    ev = T.evaluate(terms, x0, with_jac=True)
-    before = ev.costs()
-    D, U, g_c = T.normal_equations(terms, ev, location=False)
-    loc_idx = terms.loc_idx
-    loc_free = np.ones(len(loc_idx), dtype=bool)
-    if fixed is not None:
-        D[fixed] = np.eye(6)
-        U[fixed[:-1] | fixed[1:]] = 0.0
-        loc_free = ~fixed[loc_idx]
-    diag = np.einsum("kii->ki", D).ravel()
-    # a hair of damping keeps the factorisation positive definite where a keyframe has only
-    # relative constraints (no fix, no edit)
-    ab_c = pack_banded(D, U, 1e-9 * np.maximum(diag, 1e-12))
-    rows, col_off, ia, ib = _position_band_index()
-    li = loc_idx[loc_free]
-    band_rows = np.broadcast_to(rows, (len(li), len(rows)))
-    band_cols = 6 * li[:, None] + col_off[None, :]
-    g_rows = (6 * li[:, None] + np.arange(3)[None, :])
-    fixed_rows = None if fixed is None else (6 * np.flatnonzero(fixed)[:, None] + np.arange(6)[None, :]).ravel()
-    x = x0.copy()
-    for step in range(1, max_steps + 1):
-        p_m = x.reshape(-1, 6)[:, :3]
-        g_loc, H_loc = T.location_model(terms, p_m)
-        g = g_c + banded_matvec(D, U, x - x0)
-        g[g_rows] += g_loc[loc_free]
-        if fixed_rows is not None:
-            g[fixed_rows] = 0.0
-        ab = ab_c.copy()
-        ab[band_rows, band_cols] += H_loc[loc_free][:, ia, ib]
-        try:
-            dx = solveh_banded(ab, -g, check_finite=False)
-        except LinAlgError:
+    x = np.array(x0, dtype=float, copy=True)
+    before = None
+    steps = 0
+    for _outer in range(3):
+        x_lin = x.copy()
+        ev = T.evaluate(terms, x_lin, with_jac=True)
+        if before is None:
+            before = ev.costs()
+        x, n = _newton_on_linearised(terms, ev, x_lin, fixed, max_steps - steps, step_tol_m)
+        if x is None:
             return None
-        x = x + dx
-        if float(np.max(np.abs(dx.reshape(-1, 6)[:, :3]))) <= step_tol_m:
+        steps += n
+        # the other terms were linearised at x_lin: fine while orientations moved by well under
+        # a milliradian (the usual case); otherwise linearise again where we are and go on
+        if float(np.max(np.abs((x - x_lin).reshape(-1, 6)[:, 3:]), initial=0.0)) < 1e-3:
             break
-        if step == max_steps:
-            return None
+    else:
+        return None
     after = T.evaluate(terms, x, with_jac=False).costs()
     F0, F = sum(before.values()), sum(after.values())
     if not np.isfinite(F) or F > F0 * (1.0 + 1e-12):
         return None
     return x, SolverResult(
         status="converged",
-        message=f"{step} Newton steps (location term re-linearised), last step below {step_tol_m:g} m",
-        iterations=step,
+        message=f"{steps} Newton steps (location term re-linearised), last step below {step_tol_m:g} m",
+        iterations=steps,
         cost_before=before,
         cost_after=after,
         time_s=time.perf_counter() - started,
