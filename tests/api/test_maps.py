@@ -173,6 +173,8 @@ class TestBadUploads:
         r = client.post(f"/api/v1/floorplans/{fp['id']}/walks", files={"file": ("w.txt", "\n".join(lines).encode())}, headers=users["operator"])
         assert r.status_code == 422, r.text
         assert r.json()["line"] == 251 and r.json()["field"] == "TYPE_ACCELEROMETER" and "w.txt:251" in r.json()["detail"]
+        # The walk's staging copy is gone: only the floor's own files remain.
+        assert all("floorplans" in str(p) for p in stored_files(app.state.settings))
 
 
 class TestAccess:
