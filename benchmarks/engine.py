@@ -11,8 +11,9 @@ Every comparison runs on the same simulated problems (``posefix.core.simulate``)
    model, BetweenFactorPose3, AttitudeFactorPose3.  Both final states are scored with the
    posefix cost function (GTSAM's BetweenFactor measures translation through the SE(3)
    log, a hair different from the issue's relative-translation term);
-2. one more edit on a solved 3,600-keyframe run: posefix warm start (drift re-estimated,
-   every location weight updated) vs one iSAM2 update with the new factor;
+2. one more edit on a solved 3,600-keyframe run: posefix's local warm solve (drift model
+   with the last solve's parameters, every changed term re-optimised in a window) and its
+   full warm solve vs one iSAM2 update with the new factor;
 3. propagation of 3,600 keyframes to 360,000 samples (a one-hour 100 Hz run);
 4. accuracy against truth in every simulator regime with edits every 30, 100 and 300 s:
    input, naive (linear interpolation of edit offsets), GTSAM (the standard graph: GNSS
