@@ -55,6 +55,11 @@ def test_conflicting_corrections_are_flagged_reviewed_and_merged(env: Env) -> No
     assert len(view["submissions"]) == 2 and len(view["disagreement_m"]) == len(view["reported"])
     assert 19.0 < max(view["disagreement_m"]) < 21.5
     assert [len(s["moves"]) for s in view["submissions"]] == [3, 3]
+    # the consensus is the engine's re-optimisation of the medians: at keyframe 10 midway (~10 m east of truth)
+    assert len(view["consensus"]) == len(view["reported"])
+    mid = truth_move(env, run_id, 10, error_east_m=10.0)
+    assert abs(view["consensus"][10][0] - mid["lon"]) < 2e-5 and abs(view["consensus"][10][1] - mid["lat"]) < 1e-5
+    assert all(8.0 < s["consensus_error_m"] < 12.0 for s in view["submissions"])
 
     # operators cannot review, nobody reviews their own work
     assert env.client("op1").post(f"/api/v1/assignments/{a2['id']}/review", json={"decision": "approve"}).status_code == 403

@@ -17,6 +17,7 @@ from __future__ import annotations
 import datetime as dt
 import hashlib
 import json
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -476,8 +477,11 @@ def _origin(session: Session, run_id: int) -> geodesy.EnuOrigin:
     return geodesy.EnuOrigin(cols[0][4], cols[0][3], 0.0)
 
 
+Reoptimise = Callable[[dict[str, Any]], np.ndarray]  # edit set -> (k, 2) lon, lat solved by the engine
+
+
 def record_evaluation(session: Session, assignment_id: int, corrected: list[list[float]], gold_error_m: float | None,
-                      now: dt.datetime) -> Assignment | None:
+                      now: dt.datetime, reoptimise: Reoptimise | None = None) -> Assignment | None:
     a = repo.get_assignment(session, assignment_id, for_update=True)
     if a is None or a.status not in repo.SUBMITTED_OR_BETTER:
         return None
@@ -491,7 +495,7 @@ def record_evaluation(session: Session, assignment_id: int, corrected: list[list
     if task.is_test:
         _score_test(session, a, now)
     else:
-        update_consensus(session, a.task_run_id, now)
+        update_consensus(session, a.task_run_id, now, reoptimise)
     return a
 
 
@@ -507,7 +511,7 @@ def _score_test(session: Session, a: Assignment, now: dt.datetime) -> None:
                       detail={"message": message, "assignment_id": a.id, "error_m": err})
 
 
-def update_consensus(session: Session, task_run_id: int, now: dt.datetime) -> None:
+def update_consensus(session: Session, task_run_id: int, now: dt.datetime, reoptimise: Reoptimise | None = None) -> None:
     """When every wanted submission of a run is in and evaluated: consensus, conflicts, policy."""
     tr = session.get(TaskRun, task_run_id)
     task = session.get(Task, tr.task_id) if tr else None
@@ -518,7 +522,7 @@ def update_consensus(session: Session, task_run_id: int, now: dt.datetime) -> No
     done = [a for a in rows if a.status in repo.SUBMITTED_OR_BETTER]
     if pending or not done or any(a.evaluated_at is None for a in done):
         return
-    result = compute_consensus(session, tr, task, done)
+    result = compute_consensus(session, tr, task, done, reoptimise)
     tr.consensus, tr.disagreement_m, tr.conflicts = result["consensus"], result["disagreement_m"], result["conflicts"]
     for a, err in zip(done, result["consensus_error_m"]):
         a.consensus_error_m = err
@@ -546,8 +550,14 @@ def update_consensus(session: Session, task_run_id: int, now: dt.datetime) -> No
     maybe_merge(session, tr, now, actor_id=None)
 
 
-def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assignment]) -> dict[str, Any]:
-    """Geometric median per keyframe of the submissions' corrected tracks; conflicts between them."""
+def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assignment],
+                      reoptimise: Reoptimise | None = None) -> dict[str, Any]:
+    """The consensus track and the conflicts between the submissions' corrected tracks.
+
+    Consensus: the geometric median per keyframe of the corrected positions; with
+    ``reoptimise`` (the engine, in the worker), the medians at the keyframes anyone moved
+    (and the majority's deletions, as the merge would submit them) are re-optimised by the
+    engine into one consistent track."""
     origin = _origin(session, tr.run_id)
     pos = np.array([a.corrected for a in done], dtype=float)            # (m, k, 2) lon, lat
     x_m = _local_m(pos[..., 0], pos[..., 1], origin)                      # (m, k, 2) metres
@@ -559,7 +569,13 @@ def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assi
     median_m = consensus.geometric_median(x_m, valid)
     # a keyframe every operator deleted has no median: keep the first track there (it is removed anyway)
     median_m = np.where(np.isnan(median_m), x_m[0], median_m)
-    lat, lon, _ = geodesy.enu_to_geodetic(np.column_stack([median_m, np.zeros(len(median_m))]), origin)
+    if reoptimise is not None:
+        moves, deleted, _ = merged_edits(session, tr, done)
+        solved = np.asarray(reoptimise({"moves": [[m.index, m.lon, m.lat, m.alt] for m in moves], "deleted": deleted, "flags": []}))
+        lon, lat = solved[:, 0], solved[:, 1]
+        median_m = _local_m(lon, lat, origin)
+    else:
+        lat, lon, _ = geodesy.enu_to_geodetic(np.column_stack([median_m, np.zeros(len(median_m))]), origin)
     tracks = consensus.track_conflicts(x_m, task.conflict_distance_m, task.conflict_keyframes, valid)
     moves_m = []
     for a in done:
