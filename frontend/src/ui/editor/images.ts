@@ -70,8 +70,8 @@ export class ImagesPanel {
       h("div", { class: "row" },
         h("button", { type: "button", onclick: () => this.step(-1), disabled: n < 2, "aria-label": "Previous camera image" }, "‹"),
         h("span", { "data-testid": "image-count" }, `Camera image ${this.at + 1} of ${n}`),
-        m ? h("span", { class: "muted" }, m.filename) : null,
         h("button", { type: "button", onclick: () => this.step(+1), disabled: n < 2, "aria-label": "Next camera image" }, "›")),
+      m ? h("p", { class: "muted" }, m.filename) : "",
       meta,
       exif ? h("p", { class: "muted" }, exif.slice(3)) : "",
     );
