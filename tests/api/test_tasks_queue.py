@@ -148,20 +148,35 @@ def test_auto_approval_after_the_delay_merges_the_run(env: Env) -> None:
 
 def test_task_lifetime_ends_and_open_slots_are_withdrawn(env: Env) -> None:
     run_id = env.import_run("drive-a", seed=5)
+    other = env.import_run("drive-b", seed=6)
     env.add_user("op1", "operator")
-    task_id = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], lifetime_s=3600)).json()["id"]
+    env.add_user("op2", "operator")
+    task_id = env.client("admin").post("/api/v1/tasks", json=task_body([run_id, other], lifetime_s=3600, auto_approval_delay_s=86400)).json()["id"]
+    a = env.client("op1").post("/api/v1/tasks/next").json()["assignment"]
+    assert env.client("op1").post(f"/api/v1/assignments/{a['id']}/submit",
+                                  json={"moves": [truth_move(env, a["run_id"], 6)]}).status_code == 200
+    env.drain()
     env.clock.advance(3601)
-    assert env.client("op1").post("/api/v1/tasks/next").json()["assignment"] is None
+    assert env.client("op2").post("/api/v1/tasks/next").json()["assignment"] is None
     with env.db.transaction() as s:
         assert service.maintain(s, env.clock.now())["tasks_expired"] == 1
     task = env.client("admin").get(f"/api/v1/tasks/{task_id}").json()
-    assert task["status"] == "expired" and task["counts"] == {"withdrawn": 2}
-    # with nothing left that can time out, the worker's maintenance job stops re-scheduling itself
-    with env.db.transaction(write=False) as s:
-        assert service.needs_maintenance(s) is False
+    assert task["status"] == "expired" and task["counts"] == {"withdrawn": 3, "submitted": 1}
+    # the one submission still reaches review and is merged; the untouched run stays open
+    states = {r["run_id"]: r["status"] for r in task["runs"]}
+    assert states == {a["run_id"]: "agreed", (other if a["run_id"] == run_id else run_id): "open"}
+    assert env.client("reviewer").post(f"/api/v1/assignments/{a['id']}/review", json={"decision": "approve"}).status_code == 200
     env.drain()
+    task = env.client("admin").get(f"/api/v1/tasks/{task_id}").json()
+    assert {r["run_id"]: r["merged_revision"] for r in task["runs"]}[a["run_id"]] == 1
+    # with nothing left that can time out, the worker's maintenance job stops re-scheduling itself
     from posefix.jobs.models import Job
 
+    with env.db.transaction() as s:
+        assert service.needs_maintenance(s) is False
+        for j in s.scalars(select(Job).where(Job.kind == service.MAINTAIN_JOB, Job.status == "queued")):
+            j.run_after = j.created_at  # due now
+    env.drain()
     with env.db.transaction(write=False) as s:
-        kinds = [j.status for j in s.scalars(select(Job).where(Job.kind == service.MAINTAIN_JOB))]
-    assert kinds == ["succeeded"]
+        left = [j.status for j in s.scalars(select(Job).where(Job.kind == service.MAINTAIN_JOB))]
+    assert left and set(left) == {"succeeded"}

@@ -764,6 +764,9 @@ def maintain(session: Session, now: dt.datetime) -> dict[str, int]:
     for task in repo.overdue_tasks(session, now):
         if move_task(session, task, TaskStatus.expired, now, reason="lifetime over"):
             _withdraw(session, task, now, None)
+            # work already submitted on runs that will get no more still goes to review
+            for tr in repo.task_runs(session, task.id):
+                update_consensus(session, tr.id, now)
             ended += 1
     forgotten = repo.forget_tokens(session, now - TOKEN_TTL)
     return {"leases_expired": expired, "auto_approved": approved, "tasks_expired": ended, "tokens_forgotten": forgotten}
