@@ -7,7 +7,6 @@ from __future__ import annotations
 import atexit
 import datetime as dt
 import functools
-import io
 import os
 import shutil
 import tempfile
@@ -241,4 +240,4 @@ def csv_bytes(run: Any, tmp: Path, name: str) -> bytes:
     return p.read_bytes()
 
 
-__all__ = ["Env", "env", "task_body", "truth_move", "shifted", "csv_bytes", "ORIGIN", "io"]
+__all__ = ["Env", "env", "task_body", "truth_move", "shifted", "csv_bytes", "ORIGIN"]

@@ -79,8 +79,6 @@ def test_conflicting_corrections_are_flagged_reviewed_and_merged(env: Env) -> No
     detail = env.client("admin").get(f"/api/v1/runs/{run_id}/revisions/1").json()
     moves = {m[0]: m for m in detail["edit_set"]["moves"]}
     assert set(moves) == {10, 20, 30}
-    from tests.api.tasks_support import shifted
-
     t10 = truth_move(env, run_id, 10, error_east_m=10.0)
     assert abs(moves[10][1] - t10["lon"]) < 2e-6 and abs(moves[10][2] - t10["lat"]) < 2e-6
     hist = env.client("admin").get(f"/api/v1/tasks/{task_id}/history").json()

@@ -20,7 +20,6 @@ from posefix.errors import NotFound, Unprocessable, responses
 from posefix.io import RunFormatError, read_run
 from posefix.runs import storage
 from posefix.runs.access import get_visible_run, visible_run_ids
-from posefix.runs.models import Run
 from posefix.tasks import clock, service
 from posefix.tasks import repository as repo
 from posefix.tasks.models import AssignmentStatus, GoldRun, Task, TaskRun
@@ -332,5 +331,3 @@ def add_gold_run(
 def list_gold_runs(principal: AdminOnly, session: SessionDep) -> list[GoldRunPublic]:
     return [GoldRunPublic.model_validate(g) for g in session.scalars(select(GoldRun).order_by(GoldRun.run_id))]
 
-
-__all__ = ["router", "Run"]
