@@ -180,3 +180,35 @@ def test_task_lifetime_ends_and_open_slots_are_withdrawn(env: Env) -> None:
     with env.db.transaction(write=False) as s:
         left = [j.status for j in s.scalars(select(Job).where(Job.kind == service.MAINTAIN_JOB))]
     assert left and set(left) == {"succeeded"}
+
+
+def test_same_client_token_at_once_makes_one_task(env: Env) -> None:
+    from posefix.runs.access import visible_run_ids
+    from posefix.tasks.schemas import TaskCreate
+
+    run_id = env.import_run("drive-a", seed=7)
+    admin = env.principal("admin", "admin")
+    body = TaskCreate(**task_body([run_id], client_token="same-token"))
+    barrier = threading.Barrier(10)
+    ids: list[int] = []
+    errors: list[BaseException] = []
+
+    def create() -> None:
+        try:
+            barrier.wait()
+            with env.db.transaction() as s:
+                task, _created = service.create_task(s, env.settings, admin, body, env.clock.now(),
+                                                     visible=visible_run_ids(admin, env.settings))
+                ids.append(task.id)
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=create) for _ in range(10)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors, errors
+    assert len(ids) == 10 and len(set(ids)) == 1
+    assert env.client("admin").get("/api/v1/tasks").json()["total"] == 1
+    assert env.client("admin").get(f"/api/v1/tasks/{ids[0]}").json()["counts"] == {"open": 2}
