@@ -94,3 +94,26 @@ def test_gaussian_summary_ellipse():
     assert np.allclose(s.mean_xy_m, [1.0, 0.0])
     assert np.isclose(s.sigma_major_m, np.sqrt(0.5)) and np.isclose(s.sigma_minor_m, 0.0)
     assert np.isclose(s.angle_deg % 180.0, 0.0)
+
+
+def test_unknown_start_survives_the_beam_and_smoothing_corrects_the_start():
+    # A 10 m x 4 m room, 1 m cells, uniform start prior; five steps east, each other move
+    # 10 nats worse. Only starts at least 5 cells from the east wall are consistent:
+    # smoothing must move the step-0 marginal there (the walk's end disambiguates its
+    # start), and the 25-nat beam must not prune the true start at step 0.
+    r = raster_from_polygons(10.0, 4.0, [[np.array([[0, 0], [10, 0], [10, 4], [0, 4]], float)]], res_m=0.05)
+    g = build_graph(r, cell_m=1.0, reach_m=1.0, min_component_m2=1.0)
+    east = int(np.nonzero((g.offsets[:, 0] == 1) & (g.offsets[:, 1] == 0))[0][0])
+    trans = np.full((5, g.offsets.shape[0]), -10.0)
+    trans[:, east] = 0.0
+    prior = np.zeros(g.n_vertices)
+    fb = forward_backward(g, prior, trans, beam=25.0)
+    exact = forward_backward(g, prior, trans, beam=None)
+    assert np.allclose(fb.gamma, exact.gamma, atol=1e-6)
+    x0 = g.p_xy_m[:, 0]
+    ok = x0 < 10.0 - 5.0  # centres 0.5 .. 4.5 m: room for five 1 m steps east
+    assert fb.gamma[0, ok].sum() > 0.999
+    assert np.allclose(fb.gamma[0, ok], 1.0 / ok.sum(), atol=1e-3)  # no consistent start preferred
+    # The filtered (online) column at step 0 is still uniform: only smoothing corrects it.
+    f = ViterbiFilter(g, prior, beam=25.0)
+    assert np.allclose(np.exp(f.column()), 1.0 / g.n_vertices)
