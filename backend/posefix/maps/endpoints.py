@@ -8,6 +8,7 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Depends, Query, Request, Response, status
 from fastapi.responses import FileResponse
+from starlette.concurrency import run_in_threadpool
 
 from posefix.deps import AnyUser, EditorUser, SessionDep, SettingsDep, require
 from posefix.errors import AppError, BadRequest, LengthRequired, PayloadTooLarge, UnsupportedMediaType, responses
@@ -108,8 +109,9 @@ async def upload_floorplan(request: Request, principal: AdminUploader, session: 
         raise BadRequest(f"form field 'cell_m': a number of metres in 0.2..5 expected, got {raw_cell!r}", code="bad_form",
                          extra={"field": "cell_m"}) from None
     up = _file(form)
-    fp = service.create_floorplan(session, settings, principal, name=name, filename=up.filename, fh=up.file,
-                                  cell_m=cell_m, wake=_wake(request))
+    # Checking the floor rasterises it (~0.2 s): off the event loop.
+    fp = await run_in_threadpool(lambda: service.create_floorplan(
+        session, settings, principal, name=name, filename=up.filename, fh=up.file, cell_m=cell_m, wake=_wake(request)))
     return FloorPlanPublic.model_validate(fp)
 
 
@@ -166,10 +168,12 @@ async def track_walk(floorplan_id: int, request: Request, session: SessionDep, s
     ``steps`` (position, dead reckoning and 1σ error ellipse per step) and ``errors``
     (at the waypoints: the competition's straight-line convention between them)."""
     fp = service.get_floorplan(session, floorplan_id)
-    service.MODELS.get(settings, fp)  # 409 before reading the upload when there is no model yet
+    await run_in_threadpool(service.MODELS.get, settings, fp)  # 409 before reading the upload when there is no model yet
     form = await _form(request, service.MAX_WALK_BYTES, "a walk")
     up = _file(form)
-    return service.track_walk_upload(settings, fp, up.file, up.filename, _text(form, "start"))
+    start = _text(form, "start")
+    # CPU-bound (reading the file, ~1 ms per step): off the event loop.
+    return await run_in_threadpool(service.track_walk_upload, settings, fp, up.file, up.filename, start)
 
 
 @router.post("/floorplans/{floorplan_id}/sessions", response_model=SessionCreated, status_code=status.HTTP_201_CREATED,
