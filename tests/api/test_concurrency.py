@@ -90,12 +90,12 @@ class TestConcurrentSubmitters:
         # nothing lost: the last revision carries every winner's deletion
         deadline = time.monotonic() + 120
         while True:
-            run = httpx.get(f"{base}/api/v1/runs/{rid}", headers=hs["admin"]).json()
+            run = httpx.get(f"{base}/api/v1/runs/{rid}", headers=hs["admin"], timeout=60).json()
             if run["revision"] == rounds:
                 break
             assert time.monotonic() < deadline
             time.sleep(0.2)
-        rev = httpx.get(f"{base}/api/v1/runs/{rid}/revisions/{rounds}", headers=hs["admin"]).json()
+        rev = httpx.get(f"{base}/api/v1/runs/{rid}/revisions/{rounds}", headers=hs["admin"], timeout=60).json()
         assert len(rev["edit_set"]["deleted"]) == rounds
 
 
@@ -103,7 +103,7 @@ class TestEvents:
     def test_sse_job_progress_and_revision_ready(self, live):
         base, app, hs = live
         rid = upload_run(base, hs["admin"], 5000)
-        r = httpx.post(f"{base}/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [4]}, headers=hs["admin"])
+        r = httpx.post(f"{base}/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [4]}, headers=hs["admin"], timeout=60)
         jid = r.json()["job_id"]
         events = []
         with httpx.stream("GET", f"{base}/api/v1/events", params={"job_id": jid, "until_done": "true", "max_s": 60},
@@ -127,7 +127,7 @@ class TestEvents:
     def test_sse_only_visible_runs(self, live):
         base, app, hs = live
         rid = upload_run(base, hs["client"], 600)
-        r = httpx.post(f"{base}/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [4]}, headers=hs["admin"])
+        r = httpx.post(f"{base}/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [4]}, headers=hs["admin"], timeout=60)
         with httpx.stream("GET", f"{base}/api/v1/events", params={"max_s": 3}, headers=hs["operator"], timeout=30) as resp:
             body = "".join(resp.iter_text())
         assert "revision.ready" not in body and "job.progress" not in body
@@ -135,4 +135,4 @@ class TestEvents:
 
     def test_sse_requires_login(self, live):
         base, _, _ = live
-        assert httpx.get(f"{base}/api/v1/events").status_code == 401
+        assert httpx.get(f"{base}/api/v1/events", timeout=60).status_code == 401

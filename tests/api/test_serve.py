@@ -45,13 +45,13 @@ def test_serve_with_embedded_worker(tmp_path):
         h = {"Authorization": f"Bearer {token}"}
         rid = httpx.post(f"{base}/api/v1/runs", files={"file": ("d.csv", drive_csv(300))}, data={"name": "d"}, headers=h,
                          timeout=60).json()["id"]
-        r = httpx.post(f"{base}/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [3]}, headers=h)
+        r = httpx.post(f"{base}/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [3]}, headers=h, timeout=60)
         assert r.status_code == 202
         deadline = time.monotonic() + 60
-        while httpx.get(f"{base}/api/v1/jobs/{r.json()['job_id']}", headers=h).json()["status"] != "succeeded":
+        while httpx.get(f"{base}/api/v1/jobs/{r.json()['job_id']}", headers=h, timeout=60).json()["status"] != "succeeded":
             assert time.monotonic() < deadline
             time.sleep(0.2)
-        assert httpx.get(f"{base}/api/v1/runs/{rid}", headers=h).json()["revision"] == 1
+        assert httpx.get(f"{base}/api/v1/runs/{rid}", headers=h, timeout=60).json()["revision"] == 1
         assert (tmp_path / "var" / "posefix.sqlite").exists()
     finally:
         proc.terminate()
