@@ -135,17 +135,14 @@ def set_task_status(session: Session, task: Task, to: TaskStatus, *, allowed_fro
 # -- queue -----------------------------------------------------------------------------
 
 def lock_operator(session: Session, user_id: int, at: dt.datetime) -> None:
-    """Serialise one operator's queue requests (their profile row is the lock)."""
+    """Serialise one operator's queue requests: their profile row is the lock. One upsert
+    creates the row or updates it, and on PostgreSQL ``ON CONFLICT DO UPDATE`` holds the
+    row lock to the end of the transaction (SQLite: ``BEGIN IMMEDIATE`` serialises anyway)."""
     table = OperatorProfile.__table__
-    values = {"user_id": user_id, "updated_at": at}
-    stmt = (pg_insert(table) if is_pg(session) else sqlite_insert(table)).values(**values).on_conflict_do_nothing(
-        index_elements=["user_id"])
-    session.execute(stmt)
-    lock = select(OperatorProfile.user_id).where(OperatorProfile.user_id == user_id)
-    if is_pg(session):
-        lock = lock.with_for_update()
-    session.execute(lock)
-    session.execute(update(OperatorProfile).where(OperatorProfile.user_id == user_id).values(last_request_at=at))
+    stmt = (pg_insert(table) if is_pg(session) else sqlite_insert(table)).values(
+        user_id=user_id, updated_at=at, last_request_at=at,
+    )
+    session.execute(stmt.on_conflict_do_update(index_elements=["user_id"], set_={"last_request_at": at}))
 
 
 def active_leases(session: Session, user_id: int) -> int:

@@ -307,9 +307,8 @@ def next_assignment(session: Session, principal: Principal, now: dt.datetime) ->
             message = "no work is available right now"
         return {"assignment": None, "message": message, "ineligible": ineligible}
     aid, tid = got
-    a = repo.get_assignment(session, aid)
+    a = repo.get_assignment(session, aid)  # not loaded before the UPDATE: read fresh
     assert a is not None
-    session.refresh(a)
     repo.record(session, task_id=tid, entity="assignment", assignment_id=aid, task_run_id=a.task_run_id,
                 from_status=AssignmentStatus.open, to_status=AssignmentStatus.accepted, actor_id=uid, at=now, reason="leased",
                 detail={"lease_expires_at": a.lease_expires_at.isoformat() if a.lease_expires_at else None})
