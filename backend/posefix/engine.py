@@ -308,8 +308,7 @@ class Problem:
         else:
             drift = no_drift(len(act_rows))
         loc_idx = np.flatnonzero(has_fix)
-        rel_w_t, extra_var = bend_to_edits(p_rep, static.rel_w_t, e_act, edit_c_m, uc.sigma_h_m)
-        sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[loc_idx] ** 2 + extra_var[loc_idx])
+        sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[loc_idx] ** 2)
         loc_sigma = np.stack([sigma_h, sigma_h, np.full(len(loc_idx), lc.sigma_v_m)], axis=1)
         loc_g = g[loc_idx] - drift.bias_enu_m[loc_idx]
         user_sigma = np.tile([uc.sigma_h_m, uc.sigma_h_m, uc.sigma_v_m], (len(e_act), 1))
@@ -320,7 +319,6 @@ class Problem:
             static,
             loc_idx=loc_idx, loc_g_m=loc_g, loc_w=1.0 / loc_sigma,
             user_idx=e_act, user_c_m=c, user_w=1.0 / user_sigma,
-            rel_w_t=rel_w_t,
         )
         x0 = self._warm_state(act_rows, p_rep, warm_start)
         result = None
@@ -556,47 +554,6 @@ def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarr
     step_body = rot.rotate(rot.quat_conjugate(q_wxyz[:-1]), np.diff(p_enu_m, axis=0))
     sideways_m = np.hypot(step_body[:, 1], step_body[:, 2])
     return np.maximum(sideways_m - max_speed_mps * dt_s, 0.0)
-
-
-def bend_to_edits(
-    p_rep_m: np.ndarray, rel_w_t: np.ndarray, edit_kf: np.ndarray, edit_c_m: np.ndarray, sigma_u_m: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Relative-translation weights (k-1,), lowered between two edits the reported shape cannot
-    join, and extra location variance (k,) in m^2 for the keyframes strictly between them.
-
-    Between consecutive edits a < b the reported shape predicts the horizontal displacement
-    ``p~_b - p~_a`` and the edits say ``c_b - c_a``; their difference D has, per axis, the
-    variance ``V = sum s_RT,i^2`` the relative terms allow over the interval plus the two
-    edits' ``2 sigma_u^2``.  Where |D|^2 exceeds the 99 % point of that chi-square (2 dof,
-    9.21 V) the pose's error changed there more than its model admits (an INS dragged by a
-    GNSS jump, a wheel slip): the edits are far stronger evidence than the shape, so the
-    interval's sigmas are scaled up until V matches what the edits show (|D|^2 / 2), keeping
-    their proportions (steps already suspect, see ``implausible_motion_m``, take most of
-    it).  A pose dragged off its shape was dragged by its GNSS (the INS follows the receiver),
-    so the fixes between those edits carry an error change of the same size somewhere inside:
-    their variance grows by |D|^2, as for a GNSS step the edits cannot place (see
-    ``drift.suspect_intervals``).  Elsewhere nothing changes.
-    """
-    extra = np.zeros(len(rel_w_t) + 1)
-    if len(edit_kf) < 2:
-        return rel_w_t, extra
-    order = np.argsort(edit_kf, kind="stable")
-    e, c = np.asarray(edit_kf)[order], np.asarray(edit_c_m)[order]
-    a, b = e[:-1], e[1:]
-    ok = b > a
-    a, b, ca, cb = a[ok], b[ok], c[:-1][ok], c[1:][ok]
-    var = np.concatenate([[0.0], np.cumsum(1.0 / rel_w_t**2)])
-    V = var[b] - var[a]
-    D = (cb[:, :2] - ca[:, :2]) - (p_rep_m[b, :2] - p_rep_m[a, :2])
-    d2 = np.einsum("ij,ij->i", D, D)
-    bent = np.flatnonzero(d2 > 9.21 * (V + 2.0 * sigma_u_m**2))
-    if len(bent) == 0:
-        return rel_w_t, extra
-    out = rel_w_t.copy()
-    for j in bent:
-        out[a[j]:b[j]] /= np.sqrt(0.5 * d2[j] / V[j])
-        extra[a[j] + 1:b[j]] = np.maximum(extra[a[j] + 1:b[j]], d2[j])
-    return out, extra
 
 
 def prepare(run: PoseRun, cfg: CorrectionConfig | None = None) -> Problem:

@@ -148,10 +148,6 @@ def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: floa
     moved = np.any(np.abs(new.loc_g_m - old.loc_g_m) > tol_m, axis=1)
     rew = np.any(np.abs(new.loc_w - old.loc_w) > tol_rel * np.abs(old.loc_w), axis=1)
     out[new.loc_idx[moved | rew]] = True
-    # relative terms re-weighted (edits that the reported shape cannot join loosen them)
-    rel = np.flatnonzero(np.abs(new.rel_w_t - old.rel_w_t) > tol_rel * np.abs(old.rel_w_t))
-    out[rel] = True
-    out[rel + 1] = True
     # user terms: an edit added or removed, or moved / re-weighted (vectorised over the edits)
     both = np.intersect1d(new.user_idx, old.user_idx)
     out[np.setxor1d(new.user_idx, old.user_idx)] = True
