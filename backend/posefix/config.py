@@ -28,6 +28,10 @@ class Settings(BaseSettings):
     secret_key: str = DEFAULT_SECRET
     # Empty: a SQLite file under data_dir.
     database_url: str = ""
+    # Connections per process (PostgreSQL). Request threads are capped to fit in them, so a
+    # burst queues for a thread instead of timing out on the pool.
+    db_pool_size: int = 10
+    db_max_overflow: int = 20
     data_dir: Path = Path("var")
     # Public origin(s) the browser uses, for the CSRF Origin check; empty: the request's Host.
     allowed_origins: list[str] = Field(default_factory=list)

@@ -98,7 +98,7 @@ def _run_hooks(session: Session, key: str) -> None:
 class Database:
     """The engine and two session factories: read (deferred) and write (immediate on SQLite)."""
 
-    def __init__(self, url: str, *, echo: bool = False):
+    def __init__(self, url: str, *, echo: bool = False, pool_size: int = 10, max_overflow: int = 20):
         self.url = url
         self.is_sqlite = url.startswith("sqlite")
         kwargs: dict[str, Any] = {"echo": echo, "future": True}
@@ -112,9 +112,10 @@ class Database:
                 kwargs["max_overflow"] = 20
         else:
             kwargs["pool_pre_ping"] = True
-            kwargs["pool_size"] = 10
-            kwargs["max_overflow"] = 20
+            kwargs["pool_size"] = pool_size
+            kwargs["max_overflow"] = max_overflow
         self.engine = create_engine(url, **kwargs)
+        self.max_connections = kwargs.get("pool_size", 5) + kwargs.get("max_overflow", 10)
         if self.is_sqlite:
             _configure_sqlite(self.engine)
             write_engine = self.engine.execution_options(sqlite_begin="IMMEDIATE")

@@ -14,6 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict
 from sqlalchemy.exc import DataError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 __all__ = [
@@ -149,6 +150,13 @@ def install_error_handlers(app: FastAPI) -> None:
         if exc.status_code == 404 and detail == "Not Found":
             detail = "no such route"
         return _json(exc.status_code, {"error": code, "detail": detail}, getattr(exc, "headers", None))
+
+    @app.exception_handler(PoolTimeout)
+    async def _pool_exhausted(_request: Request, exc: Exception) -> JSONResponse:
+        # Overload, not a bug: tell the client to come back rather than answer 500.
+        log.warning("database connection pool exhausted: %s", str(exc).splitlines()[0][:200])
+        return _json(503, {"error": "overloaded", "detail": "the server is busy; retry shortly"},
+                     {"Retry-After": "2"})
 
     @app.exception_handler(OverflowError)
     @app.exception_handler(DataError)

@@ -17,6 +17,7 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
+import anyio
 from fastapi import APIRouter, FastAPI, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
@@ -181,10 +182,19 @@ def _include_optional(router: APIRouter, module: str) -> None:
 def create_app(settings: Settings | None = None, *, embedded_worker: bool = False) -> FastAPI:
     settings = settings or Settings()
     configure_logging(settings)
-    db = Database(settings.resolved_database_url)
+    db = Database(
+        settings.resolved_database_url,
+        pool_size=settings.db_pool_size,
+        max_overflow=settings.db_max_overflow,
+    )
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # Each sync request holds one connection for its whole life: with more request
+        # threads than connections, a burst would wait on the pool and fail. Keep one
+        # connection spare for the embedded worker.
+        limiter = anyio.to_thread.current_default_thread_limiter()
+        limiter.total_tokens = max(4, min(limiter.total_tokens, db.max_connections - 1))
         worker = None
         if embedded_worker:
             from posefix.worker.runner import Worker
