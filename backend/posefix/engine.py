@@ -263,6 +263,7 @@ class Problem:
         warm_start: Solution | Correction | None = None,
         flags: list[Refusal] | None = None,
         local: bool = False,
+        drift: DriftEstimate | None = None,
     ) -> Solution:
         """Optimise keyframes ``index`` with edits given as keyframe numbers and ENU targets.
 
@@ -271,6 +272,8 @@ class Problem:
         terms changed, plus ``LOCAL_MARGIN`` on each side, are re-optimised; the rest stay
         at the previous solution (the edit's effect beyond its neighbouring edits is
         negligible).  Without ``local`` the full problem is solved (from the warm start).
+        ``drift`` (on the active keyframes) replaces the drift estimate: a live-drag preview
+        keeps the base solution's, so a drag changes the terms only at the dragged keyframes.
         """
         cfg = self.cfg
         k = len(index)
@@ -298,7 +301,10 @@ class Problem:
         frozen = None
         if local and same_rows and warm_sol.drift.tau_s > 0:
             frozen = (warm_sol.drift.sigma_b_m**2, warm_sol.drift.tau_s, warm_sol.drift.detected)
-        if cfg.drift.enabled and len(e_act):
+        if drift is not None:
+            if len(drift.bias_sigma_m) != len(act_rows):
+                raise ValueError(f"drift is for {len(drift.bias_sigma_m)} keyframes, the solve has {len(act_rows)}")
+        elif cfg.drift.enabled and len(e_act):
             drift = estimate_drift(
                 t_act, p_rep, g_nan, e_act, edit_c_m, edit_has_alt,
                 lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,

@@ -48,6 +48,31 @@ class TestPreview:
         assert body["refusals"] == [] and body["solver"]["status"] == "converged"
         assert body["time_ms"] < 2000
 
+    def test_preview_of_a_revision_is_local_not_a_full_solve(self, client, users):
+        import time
+
+        from posefix.runs import correction
+
+        rid = new_run(client, users, n=10000)  # 1,001 keyframes: the window around a drag is under half
+        fc, xy = kf_coords(client, users["admin"], rid)  # opening the revision solves it in the background
+        deadline = time.monotonic() + 60
+        while correction.PROBLEMS.solution(rid, fc["rules"], 0) is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        for k in (500, 150, 850):  # each the first edit of the revision: drift would reach the whole run
+            target = [xy[k, 0] + 5 * METRE_LON, xy[k, 1]]
+            body = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [{"index": k, "lon": target[0], "lat": target[1]}]},
+                               headers=users["admin"]).json()
+            info = body["preview"]
+            assert info["mode"] == "local" and info["full_solve"] is False and info["base_solved_in_request"] is False, info
+            a, b = info["window"]
+            assert a <= k <= b and b - a + 1 < 1001 / 2
+            assert body["solver"]["method"].endswith("-window")
+            pos = np.array(body["positions"])
+            assert 3.0 < (pos[k, 0] - xy[k, 0]) / METRE_LON <= 5.01
+            far = [i for i in range(1001) if i < a or i > b]
+            assert np.abs(pos[far] - xy[far]).max() < 1e-7  # outside the window: the base solution as served
+
     def test_preview_lists_refusals_and_leaves_them_out(self, client, users, app):
         rid = new_run(client, users)
         set_rules(app, rid, every_n=2)

@@ -30,6 +30,10 @@ class PreviewResponse(BaseModel):
     base_revision: int
     positions: list[list[float]] = Field(description="[lon, lat] per keyframe")
     solver: dict[str, Any]
+    preview: dict[str, Any] = Field(description=(
+        "what was solved: mode local|full, window [first, last] keyframe re-solved, full_solve, "
+        "base_solved_in_request (the base revision had to be solved first); a preview keeps the "
+        "base revision's drift estimate and is exact only after the commit"))
     drift: dict[str, Any]
     refusals: list[RefusalOut]
     flags: list[RefusalOut]

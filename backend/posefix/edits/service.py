@@ -78,14 +78,15 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
     # (solved once and cached); the engine then re-solves only around what changed.
     drag_key = (run.id, json.dumps(run.rules, sort_keys=True), base_revision,
                 tuple(m[0] for m in merged["moves"]), tuple(merged["deleted"]))
-    warm = correction.PROBLEMS.preview_solution(drag_key) or correction.base_solution(run.id, run.rules, base_revision, problem, base)
-    sol = correction.solve(problem, merged, warm, local=True)
+    base_sol, base_solved = correction.base_solution_state(run.id, run.rules, base_revision, problem, base)
+    sol, info = correction.preview_solve(problem, merged, base_sol, correction.PROBLEMS.preview_solution(drag_key))
     correction.PROBLEMS.put_preview_solution(drag_key, sol)
     lon, lat, _ = correction.keyframe_lonlatalt(problem, sol)
     return {
         "base_revision": base_revision,
         "positions": np.round(np.stack([lon, lat], axis=1), 8).tolist(),
         "solver": correction.solver_json(sol),
+        "preview": {**info, "base_solved_in_request": base_solved},
         "drift": correction.drift_json(sol),
         "refusals": [r.to_json() for r in check.refusals],
         "flags": [f.to_json() for f in check.flags],

@@ -25,6 +25,7 @@ import numpy as np
 from posefix.config import Settings
 from posefix.core import geodesy
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, RuleCheck, check_edits
+from posefix.core.drift import DriftEstimate, estimate_drift
 from posefix.core.run import PoseRun
 from posefix.engine import CorrectionConfig, Problem, Solution, prepare
 
@@ -134,13 +135,110 @@ _warming: set[tuple[int, int]] = set()
 _warming_lock = threading.Lock()
 
 
-def base_solution(run_id: int, rules: dict[str, Any], revision: int, problem: Problem, edit_set: dict[str, Any]) -> Solution:
-    """The exact solution of a revision's edit set (cached): the warm start of its previews."""
+_base_gates: dict[tuple[int, str, int], threading.Lock] = {}
+_base_gates_lock = threading.Lock()
+
+
+def base_solution_state(run_id: int, rules: dict[str, Any], revision: int, problem: Problem,
+                        edit_set: dict[str, Any]) -> tuple[Solution, bool]:
+    """The exact solution of a revision's edit set (cached) and whether this call solved it.
+
+    One full solve per (run, rules, revision) and process: concurrent callers (the warm-up
+    after the keyframes were served, the worker writing the revision, previews) wait for
+    the one that is solving instead of solving again.
+    """
     sol = PROBLEMS.solution(run_id, rules, revision)
-    if sol is None:
+    if sol is not None:
+        return sol, False
+    key = (run_id, json.dumps(rules, sort_keys=True), revision)
+    with _base_gates_lock:
+        gate = _base_gates.setdefault(key, threading.Lock())
+    with gate:
+        sol = PROBLEMS.solution(run_id, rules, revision)
+        if sol is not None:
+            return sol, False
         sol = solve(problem, edit_set, None)
         PROBLEMS.put_solution(run_id, rules, revision, sol)
-    return sol
+    with _base_gates_lock:
+        _base_gates.pop(key, None)
+    return sol, True
+
+
+def base_solution(run_id: int, rules: dict[str, Any], revision: int, problem: Problem, edit_set: dict[str, Any]) -> Solution:
+    """The exact solution of a revision's edit set (cached): the warm start of its previews."""
+    return base_solution_state(run_id, rules, revision, problem, edit_set)[0]
+
+
+PREVIEW_DRIFT_KEYFRAMES = (30, 90)  # the new drift estimate in full within this many keyframes of a new edit, none beyond the second
+
+
+def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> DriftEstimate:
+    """The drift estimate of the new edit set near the keyframes whose edits differ from the
+    base solution's, tapering linearly to the base solution's estimate further away.
+
+    (k,) per-keyframe arrays; only on the default keyframes with none removed (otherwise the
+    base estimate as it is).  Near the drag the location terms are those the commit will see
+    (so the dragged keyframe follows the cursor); far away they stay as in the base solution,
+    so the change is local and a window solve answers it.
+    """
+    cfg = problem.cfg
+    index = problem.keyframe_index
+    k = len(index)
+    moves = moves_of(merged)
+    if not cfg.drift.enabled or not moves or merged.get("deleted") or not bool(np.all(base.active)) \
+            or len(base.drift.bias_sigma_m) != k:
+        return base.drift
+    edit_kf = np.array([m.index for m in moves], dtype=np.int64)
+    c_m = to_en(problem, moves)
+    has_alt = np.array([m.alt is not None for m in moves], dtype=bool)
+    base_kf = base.keyframes.edited
+    new_kf = edit_kf[~base_kf[edit_kf]] if len(base_kf) == k else edit_kf
+    # keyframes edited now and not in the base revision (being dragged); else all edited ones
+    changed = new_kf if len(new_kf) else edit_kf
+    p_rep = problem.p_enu_m[index]
+    g = p_rep if problem.g_enu_m is None else problem.g_enu_m[index]
+    g_nan = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, np.nan)
+    lc, uc = cfg.location, cfg.user
+    new = estimate_drift(
+        problem.run.t_s[index], p_rep, g_nan, edit_kf, c_m, has_alt, lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m,
+        uc.sigma_v_m, cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
+    )
+    near, far = PREVIEW_DRIFT_KEYFRAMES
+    dist = np.min(np.abs(np.arange(k)[:, None] - changed[None, :]), axis=1)
+    w = np.clip((far - dist) / (far - near), 0.0, 1.0)
+    return dataclasses.replace(
+        new,
+        bias_enu_m=w[:, None] * new.bias_enu_m + (1 - w[:, None]) * base.drift.bias_enu_m,
+        bias_sigma_m=w * new.bias_sigma_m + (1 - w) * base.drift.bias_sigma_m,
+        weight=w * new.weight + (1 - w) * base.drift.weight,
+    )
+
+
+def preview_solve(problem: Problem, merged: dict[str, Any], base: Solution, warm: Solution | None) -> tuple[Solution, dict[str, Any]]:
+    """A live-drag answer: a local solve around the dragged keyframes, warm-started from the
+    previous frame of the drag (or the base revision's exact solution), with the base
+    solution's drift estimate kept as it is.
+
+    The drift estimate of a new edit set reaches the whole run (one edit showing a GNSS
+    bias down-weights every fix), which would make every first drag a full solve; the
+    preview applies it only near the drag (``local_drift``) and leaves the rest to the
+    commit, whose worker solves the exact problem.  Returns the
+    solution and a description of what was solved (``local``: only a window was re-solved).
+    """
+    drift = local_drift(problem, merged, base)
+    sol = solve(problem, merged, warm or base, local=True, drift=drift)
+    window = sol.solver.extra.get("window")
+    held = sol.solver.extra.get("window_held")
+    info = {
+        "mode": "local" if held is not None else "full",
+        "local": held is not None,
+        "full_solve": held is None,
+        "window": None if window is None else [int(window[0]), int(window[1])],
+        "keyframes": int(len(sol.keyframes.index)),
+        "drift": f"the new estimate within {PREVIEW_DRIFT_KEYFRAMES[0]}-{PREVIEW_DRIFT_KEYFRAMES[1]} keyframes of the drag, the base revision's beyond (the commit re-estimates it over the whole run)",
+        "exact": False,
+    }
+    return sol, info
 
 
 def warm_once(run_id: int, revision: int, fn: Callable[[], None]) -> None:
@@ -208,8 +306,10 @@ def merge(base: dict[str, Any], moves: list[BatchMove], deleted: list[int], flag
     }
 
 
-def solve(problem: Problem, edit_set: dict[str, Any], warm: Solution | None = None, *, local: bool = False) -> Solution:
-    """Solve an edit set; ``local`` (with a warm start) re-optimises only around what changed."""
+def solve(problem: Problem, edit_set: dict[str, Any], warm: Solution | None = None, *, local: bool = False,
+          drift: DriftEstimate | None = None) -> Solution:
+    """Solve an edit set; ``local`` (with a warm start) re-optimises only around what changed;
+    ``drift`` replaces the drift estimate (a preview keeps the base solution's)."""
     moves = moves_of(edit_set)
     c_m = to_en(problem, moves)
     flags = [Refusal(int(f["index"]), f["reason"], f["message"]) for f in edit_set.get("flags", [])]
@@ -222,6 +322,7 @@ def solve(problem: Problem, edit_set: dict[str, Any], warm: Solution | None = No
         warm,
         flags,
         local=local,
+        drift=drift,
     )
 
 
