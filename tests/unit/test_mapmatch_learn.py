@@ -107,3 +107,37 @@ def test_step_length_hard_em_recovers_gamma():
     # much shorter steps put every turn far from its corner and the path loses the walls).
     sm2 = learn_step_constants(model.with_(step_model=replace(model.step_model, gamma_m=-0.2)), walks, iters=8)
     assert abs(sm2.gamma_m - (-0.12)) < 0.02, sm2.gamma_m
+
+
+def test_step_scale_is_the_ratio_of_surveyed_to_dead_reckoned_distance():
+    import os
+    from pathlib import Path
+
+    from posefix.mapmatch.learn import learn_step_scale, waypoint_segments
+    from posefix.mapmatch.sensors import read_walk, steps_from_walk
+
+    floor = Path(os.environ.get("POSEFIX_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
+    walk = read_walk(floor / "indoor-site1-F1" / "walks" / "5dd9e7aac5b77e0006b1732b.txt")
+    sm0 = StepModel()
+    sm1 = learn_step_scale([walk], sm0)
+    dd, dw = waypoint_segments([walk], sm0)
+    s = np.linalg.norm(dw, axis=1).sum() / np.linalg.norm(dd, axis=1).sum()
+    steps = steps_from_walk(walk)
+    # Every step is lengthened by s and keeps its heading.
+    v0, v1 = steps.vectors_m(sm0), steps.vectors_m(sm1)
+    assert np.allclose(v1, s * v0)
+    # After scaling, the dead-reckoned distance over the segments equals the surveyed one.
+    dd1, dw1 = waypoint_segments([walk], sm1)
+    assert np.isclose(np.linalg.norm(dd1, axis=1).sum(), np.linalg.norm(dw1, axis=1).sum())
+    # Stretching the survey by 20 % about the start stretches the learned scale by 20 %.
+    w2 = replace(walk, waypoints=np.column_stack([walk.waypoints[:, 0], walk.waypoints[0, 1:3]
+                                                  + 1.2 * (walk.waypoints[:, 1:3] - walk.waypoints[0, 1:3])]))
+    assert np.isclose(learn_step_scale([w2], sm0).height_m, 1.2 * sm1.height_m)
+    # Waypoints in the wrong unit (decimetres) are refused with a clear message.
+    w10 = replace(walk, waypoints=np.column_stack([walk.waypoints[:, 0], 10.0 * walk.waypoints[:, 1:3]]))
+    try:
+        learn_step_scale([w10], sm0)
+    except ValueError as exc:
+        assert "step-length scale" in str(exc) and "units" in str(exc)
+    else:
+        raise AssertionError("a tenfold scale must be refused")

@@ -35,13 +35,15 @@ def build_model(floor_dir: str | Path, cell_m: float = 0.8, reach_m: float = 1.7
 
 
 def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step_em: bool = False,
-                weights: bool = True, progress: Callable[[], None] | None = None) -> tuple[Model, dict]:
-    """Learn the heading bias, then (optionally) γ by hard EM, then the f1/f2 weights.
+                weights: bool = True, progress: Callable[[], None] | None = None,
+                step_scale: bool = True) -> tuple[Model, dict]:
+    """Learn the heading bias, then the step-length scale, then (optionally) γ by hard EM,
+    then the f1/f2 weights.
 
     Every walk starts at its first waypoint. Returns the new model and a report dict.
     """
     from posefix.mapmatch.learn import (clamp_states, learn_heading_bias, learn_step_constants,
-                                        learn_weights, walk_features)
+                                        learn_step_scale, learn_weights, walk_features)
 
     tick = progress or (lambda: None)
     surveyed = [w for w in walks if w.waypoints.shape[0] >= 2]
@@ -52,6 +54,10 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
         b = learn_heading_bias(surveyed, model.step_model)
         model = model.with_(step_model=replace(model.step_model, heading_bias_rad=b))
         report["heading_bias_deg"] = round(float(np.degrees(b)), 2)
+    if step_scale:
+        sm = learn_step_scale(surveyed, model.step_model)
+        report["step_scale"] = round(sm.height_m / model.step_model.height_m, 3)
+        model = model.with_(step_model=sm)
     tick()
     if step_em:
         sm = learn_step_constants(model, [(steps_from_walk(w), tuple(w.waypoints[0, 1:3])) for w in surveyed])
