@@ -73,3 +73,22 @@ def test_cli_build_track_evaluate(tmp_path):
     assert out.exit_code == 1 and "bad.txt:1" in out.output
     assert not (tmp_path / "t2.csv").exists()
     assert not list(tmp_path.glob(".posefix-*"))
+
+
+def test_cli_train_learns_the_step_scale_unless_told_not_to(model, tmp_path):
+    from posefix.cli import _register, app
+
+    _register()
+    save_model(model, tmp_path / "m.npz")
+    r = CliRunner()
+    base = ["mapmatch", "train", "--model", str(tmp_path / "m.npz"), "--walks", str(WALK), "--no-weights"]
+    out = r.invoke(app, base + ["--output", str(tmp_path / "m1.npz")])
+    assert out.exit_code == 0, out.output
+    assert "step_scale:" in out.output
+    h1 = load_model(tmp_path / "m1.npz").step_model.height_m
+    out = r.invoke(app, base + ["--no-step-scale", "--output", str(tmp_path / "m0.npz")])
+    assert out.exit_code == 0, out.output
+    assert "step_scale:" not in out.output
+    h0 = load_model(tmp_path / "m0.npz").step_model.height_m
+    assert h0 == model.step_model.height_m
+    assert 0.7 <= h1 / h0 <= 1.4 and h1 != h0

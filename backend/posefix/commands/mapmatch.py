@@ -127,8 +127,9 @@ def train(
     heading_bias: bool = typer.Option(True, "--heading-bias/--no-heading-bias", help="Learn the sensor-to-floor heading bias (rad)."),
     step_em: bool = typer.Option(False, "--step-em/--no-step-em", help="Learn the step constant gamma (m) by hard EM."),
     weights: bool = typer.Option(True, "--weights/--no-weights", help="Learn the weights of f1, f2 by conditional likelihood."),
+    step_scale: bool = typer.Option(True, "--step-scale/--no-step-scale", help="Scale step lengths by surveyed / dead-reckoned distance between waypoints."),
 ) -> None:
-    """Learn heading bias, step constants and feature weights from surveyed walks.
+    """Learn heading bias, step-length scale, step constants and feature weights from surveyed walks.
 
     Each walk starts at its first waypoint; the waypoints clamp the likelihood (within 2 m).
     """
@@ -143,7 +144,7 @@ def train(
         ws = [read_walk(w) for w in tqdm(walks, desc="reading walks", unit="walk")]
         bar = tqdm(total=3, desc="training", unit="stage")
         model2, report = train_model(model, ws, heading_bias=heading_bias, step_em=step_em, weights=weights,
-                                     progress=lambda: bar.update(1))
+                                     progress=lambda: bar.update(1), step_scale=step_scale)
         bar.close()
         with _atomic(output, ".npz") as tmp:
             size = save_model(model2, tmp)
