@@ -413,7 +413,7 @@ class Problem:
             margin *= 3
         x = xs.copy()
         x[lo:hi + 1] = x_sub.reshape(-1, 6)
-        old_window = T.evaluate(T.window_terms(old, lo, hi), x_sub0, with_jac=False).costs()
+        old_window = _window_costs_before(T.window_terms(old, lo, hi), x_sub0, res.cost_before)
         rest = {name: old_result.cost_after[name] - old_window[name] for name in T.TERM_NAMES}
         before = {name: rest[name] + res.cost_before[name] for name in T.TERM_NAMES}
         after = {name: rest[name] + res.cost_after[name] for name in T.TERM_NAMES}
@@ -543,6 +543,22 @@ class Problem:
             run=out, keyframes=kfs, solver=sol.solver, drift=sol.drift, kept_rows=kept, flags=sol.flags,
             propagation_time_s=time.perf_counter() - started, x=sol.x, active=sol.active, terms=sol.terms,
         )
+
+
+def _window_costs_before(old_sub: T.Terms, x_sub0: np.ndarray, new_before: dict[str, float]) -> dict[str, float]:
+    """Cost of the previous problem's window terms at the warm start, per term.
+
+    Only the location and user terms differ between the previous and the new problem (the
+    relative and gravity terms depend on the keyframes alone), so those two are evaluated
+    and the others are the new window's costs at the same start, ``new_before``.
+    """
+    p_m = x_sub0.reshape(-1, 6)[:, :3]
+    loc_r, _, _ = T.location_residual(old_sub, p_m)
+    user_r = old_sub.user_w * (p_m[old_sub.user_idx] - old_sub.user_c_m)
+    costs = dict(new_before)
+    costs["location"] = 0.5 * float(np.einsum("ij,ij->", loc_r, loc_r))
+    costs["user"] = 0.5 * float(np.einsum("ij,ij->", user_r, user_r))
+    return costs
 
 
 def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:

@@ -23,7 +23,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import LinAlgError, solveh_banded
+from scipy.linalg import LinAlgError, get_lapack_funcs, solveh_banded
 
 from posefix.core import terms as T
 
@@ -177,6 +177,27 @@ def solve_banded(
     )
 
 
+@functools.cache
+def _lapack_pbsv():
+    """LAPACK's banded Cholesky solve (double precision), looked up once."""
+    return get_lapack_funcs(("pbsv",), (np.zeros(1),))[0]
+
+
+def solve_banded_spd(ab: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve A x = b, A symmetric positive definite in upper band form ab (12, 6k); overwrites ab.
+
+    What ``scipy.linalg.solveh_banded`` does, without its per-call validation and LAPACK
+    look-up (a large part of a local Newton step on a few hundred keyframes).  ``ab`` in
+    Fortran order avoids a copy inside the call.
+    """
+    _, x, info = _lapack_pbsv()(ab, b, lower=0, overwrite_ab=1, overwrite_b=1)
+    if info > 0:
+        raise LinAlgError(f"{info}th leading minor not positive definite")
+    if info < 0:
+        raise ValueError(f"illegal value in argument {-info} of pbsv")
+    return x
+
+
 @functools.lru_cache(maxsize=8)
 def _position_band_index() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Band rows and column offsets of the upper triangle of a keyframe's 3x3 position block."""
@@ -198,7 +219,8 @@ def _newton_on_linearised(terms: T.Terms, ev: T.Evaluation, x_lin: np.ndarray, f
     diag = np.einsum("kii->ki", D).ravel()
     # a hair of damping keeps the factorisation positive definite where a keyframe has only
     # relative constraints (no fix, no edit)
-    ab_c = pack_banded(D, U, 1e-9 * np.maximum(diag, 1e-12))
+    # Fortran order: LAPACK takes it as is, each step's copy is the only copy
+    ab_c = np.asfortranarray(pack_banded(D, U, 1e-9 * np.maximum(diag, 1e-12)))
     rows, col_off, ia, ib = _position_band_index()
     li = loc_idx[loc_free]
     band_rows = np.broadcast_to(rows, (len(li), len(rows)))
@@ -212,10 +234,10 @@ def _newton_on_linearised(terms: T.Terms, ev: T.Evaluation, x_lin: np.ndarray, f
         g[g_rows] += g_loc[loc_free]
         if fixed_rows is not None:
             g[fixed_rows] = 0.0
-        ab = ab_c.copy()
+        ab = ab_c.copy(order="F")
         ab[band_rows, band_cols] += H_loc[loc_free][:, ia, ib]
         try:
-            dx = solveh_banded(ab, -g, check_finite=False)
+            dx = solve_banded_spd(ab, -g)
         except LinAlgError:
             return None, step
         x = x + dx
@@ -258,7 +280,8 @@ def solve_local_newton(
     steps = 0
     for _outer in range(3):
         x_lin = x.copy()
-        ev = T.evaluate(terms, x_lin, with_jac=True)
+        # the location term's Jacobian is not needed: it is re-modelled at every step
+        ev = T.add_jacobians(terms, T.evaluate(terms, x_lin, with_jac=False), location=False)
         if before is None:
             before = ev.costs()
         x, n = _newton_on_linearised(terms, ev, x_lin, fixed, max_steps - steps, step_tol_m)

@@ -359,8 +359,11 @@ def evaluate(terms: Terms, x: np.ndarray, with_jac: bool = True) -> Evaluation:
     return ev
 
 
-def add_jacobians(terms: Terms, ev: Evaluation) -> Evaluation:
+def add_jacobians(terms: Terms, ev: Evaluation, location: bool = True) -> Evaluation:
     """Fill ``ev.jac`` with every Jacobian block at the state ``ev`` was evaluated at.
+
+    ``location=False`` leaves out the location blocks (the local Newton solve models that
+    term itself at every step, so computing them would be wasted).
 
     * location: ``dr/dp`` (see ``location_jacobian``) and the solver's loss Hessian
     * user: ``diag(W)``
@@ -378,8 +381,6 @@ def add_jacobians(terms: Terms, ev: Evaluation) -> Evaluation:
     user_J[:, [0, 1, 2], [0, 1, 2]] = terms.user_w
     dRt = np.swapaxes(terms.rel_dR, 1, 2)
     ev.jac = {
-        "loc_H": location_hessian(terms, c["p"]),
-        "loc_p": location_jacobian(terms, c["e"], c["s"]),
         "user_p": user_J,
         "rt_pi": -RiT,
         "rt_pj": RiT,
@@ -388,6 +389,9 @@ def add_jacobians(terms: Terms, ev: Evaluation) -> Evaluation:
         "rr_tj": (rot.right_jacobian_inverse(c["phi"]) @ Jr[1:]) * wr,
         "g_t": rot.skew(c["zb"]) @ Jr * terms.grav_w[:, None, None],
     }
+    if location:
+        ev.jac["loc_H"] = location_hessian(terms, c["p"])
+        ev.jac["loc_p"] = location_jacobian(terms, c["e"], c["s"])
     return ev
 
 
