@@ -32,6 +32,10 @@ f4 peaks: an access point's peak location is the survey position of its stronges
 reading, kept when that is at least ``peak_dbm`` (-55 dBm: within a few metres of it).
 While tracking, a scan where that access point reads ≥ ``peak_dbm`` and more than in the
 scans just before and after is a peak; its observation is (peak location, σ = 3 m).
+Measured on site1/F1 (fingerprints from the other half of the walks): 1 097 peaks in 1 214
+steps, the surveyed peak location a median 10.5 m from the walker (11 % within 3 m), so
+σ = 3 m is optimistic there; weight 0.5 vs 0 changed the (d) error by under 0.5 m on the
+training halves (13.07 vs 13.53 m, 17.94 vs 17.74 m), so it was left as is.
 """
 
 from __future__ import annotations
