@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import threading
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,7 +26,7 @@ import numpy as np
 from posefix.config import Settings
 from posefix.core import geodesy
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, RuleCheck, check_edits
-from posefix.core.drift import DriftEstimate, estimate_drift
+from posefix.core.drift import DriftEstimate, GnssSteps, estimate_drift, gnss_steps, step_window
 from posefix.core.run import PoseRun
 from posefix.engine import CorrectionConfig, Problem, Solution, prepare
 
@@ -169,6 +170,7 @@ def base_solution(run_id: int, rules: dict[str, Any], revision: int, problem: Pr
     return base_solution_state(run_id, rules, revision, problem, edit_set)[0]
 
 
+_STEPS: weakref.WeakKeyDictionary[Problem, GnssSteps] = weakref.WeakKeyDictionary()  # GNSS steps on a problem's default keyframes
 PREVIEW_DRIFT_KEYFRAMES = (30, 90)  # the new drift estimate in full within this many keyframes of a new edit, none beyond the second
 
 
@@ -199,9 +201,13 @@ def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> Dri
     g = p_rep if problem.g_enu_m is None else problem.g_enu_m[index]
     g_nan = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, np.nan)
     lc, uc = cfg.location, cfg.user
+    t_s = problem.run.t_s[index]
+    steps = _STEPS.get(problem)
+    if steps is None:  # they depend on the run only: most of the estimate's cost, found once
+        steps = _STEPS[problem] = gnss_steps((g_nan - p_rep)[:, :2], window=step_window(t_s))
     new = estimate_drift(
-        problem.run.t_s[index], p_rep, g_nan, edit_kf, c_m, has_alt, lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m,
-        uc.sigma_v_m, cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
+        t_s, p_rep, g_nan, edit_kf, c_m, has_alt, lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m,
+        uc.sigma_v_m, cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate, steps=steps,
     )
     near, far = PREVIEW_DRIFT_KEYFRAMES
     dist = np.min(np.abs(np.arange(k)[:, None] - changed[None, :]), axis=1)
