@@ -98,6 +98,9 @@ def serve(
     workers: Annotated[int, typer.Option(help="HTTP worker processes (PostgreSQL only)")] = 1,
     embedded_worker: Annotated[bool | None, typer.Option(help="run a job worker thread in the server (default: on SQLite)")] = None,
     migrate: Annotated[bool, typer.Option(help="apply migrations before starting")] = True,
+    keep_alive_s: Annotated[int, typer.Option(help=(
+        "seconds an idle connection stays open; longer than clients keep idle pooled connections "
+        "(httpx and requests 5 s) so a client never reuses one the server is just closing"), min=1)] = 75,
 ) -> None:
     """Serve the API and the front end (and, on SQLite, the job worker)."""
     import uvicorn
@@ -113,11 +116,12 @@ def serve(
         if settings.is_sqlite:
             typer.echo("error: several HTTP workers need PostgreSQL", err=True)
             raise typer.Exit(2)
-        uvicorn.run("posefix.main:create_app", factory=True, host=host, port=port, workers=workers, proxy_headers=True, log_config=None)
+        uvicorn.run("posefix.main:create_app", factory=True, host=host, port=port, workers=workers, proxy_headers=True, log_config=None,
+                    timeout_keep_alive=keep_alive_s)
         return
     application = create_app(settings, embedded_worker=embedded)
     typer.echo(f"posefix serving on http://{host}:{port}/ ({'embedded worker, ' if embedded else ''}{settings.resolved_database_url.split('://')[0]})")
-    uvicorn.run(application, host=host, port=port, proxy_headers=True, log_config=None)
+    uvicorn.run(application, host=host, port=port, proxy_headers=True, log_config=None, timeout_keep_alive=keep_alive_s)
 
 
 @app.command("worker")
