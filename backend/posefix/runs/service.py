@@ -122,10 +122,11 @@ def import_run(
         on_rollback(session, lambda: fs.remove_tree(f"images/{row.id}"))
 
         heading = storage.heading_deg(run.q_body_to_enu_wxyz[index])
+        columns = zip(index.tolist(), run.t_s[index].tolist(), run.lon_deg[index].tolist(), run.lat_deg[index].tolist(),
+                      run.alt_m[index].tolist(), heading.tolist())  # whole columns to Python at once
         repo.insert_keyframes(session, [
-            {"run_id": row.id, "k": k, "sample_index": int(r), "t_s": float(run.t_s[r]), "lon": float(run.lon_deg[r]),
-             "lat": float(run.lat_deg[r]), "alt": float(run.alt_m[r]), "heading_deg": float(h)}
-            for k, (r, h) in enumerate(zip(index.tolist(), heading.tolist()))
+            {"run_id": row.id, "k": k, "sample_index": r, "t_s": t, "lon": lon, "lat": lat, "alt": alt, "heading_deg": h}
+            for k, (r, t, lon, lat, alt, h) in enumerate(columns)
         ])
         tag = uuid.uuid4().hex[:8]
         if path.is_file():
