@@ -71,6 +71,7 @@ class Samples:
     latencies_s: list[float] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
     by_kind: dict[str, list[float]] = field(default_factory=dict)
+    error_kinds: dict[str, int] = field(default_factory=dict)  # "<request kind> <exception or status>" -> count
 
     def add(self, kind: str, seconds: float) -> None:
         self.latencies_s.append(seconds)
@@ -199,9 +200,15 @@ def latency_rows(admin: httpx.Client, run_id: int, n_keyframes: int, repeats: in
     collection = admin.get(f"/api/v1/runs/{run_id}/keyframes").json()
     features, revision = collection["features"], collection["revision"]
     previews = Samples()
+    modes: dict[str, int] = {}
     for _ in range(repeats):
         body = preview_body(features, revision, rng)
-        previews.latencies_s.append(timed(lambda: admin.post(f"/api/v1/runs/{run_id}/preview", json=body).raise_for_status()))
+        started = time.perf_counter()
+        response = admin.post(f"/api/v1/runs/{run_id}/preview", json=body)
+        previews.latencies_s.append(time.perf_counter() - started)
+        response.raise_for_status()
+        mode = response.json().get("preview", {}).get("mode", "?")  # local window or full solve
+        modes[mode] = modes.get(mode, 0) + 1
     edits = Samples()
     for _ in range(max(3, repeats // 5)):
         body = preview_body(features, revision, rng)
@@ -218,7 +225,8 @@ def latency_rows(admin: httpx.Client, run_id: int, n_keyframes: int, repeats: in
         Row(f"keyframes GeoJSON p50 ({label})", keyframes.p(50), "ms", None),
         Row(f"keyframes GeoJSON p95 ({label})", keyframes.p(95), "ms", None),
         Row(f"preview p50 ({label})", previews.p(50), "ms", None),
-        Row(f"preview p95 ({label})", previews.p(95), "ms", 100.0),
+        Row(f"preview p95 ({label})", previews.p(95), "ms", 100.0,
+            note="solves: " + ", ".join(f"{n} {m}" for m, n in sorted(modes.items()))),
         Row(f"edit submission p50 ({label})", edits.p(50), "ms", None),
         Row(f"edit submission p95 ({label})", edits.p(95), "ms", None, note="202 returned; re-optimised by the worker"),
     ]
@@ -312,11 +320,13 @@ async def operator_loop(base: str, cookies: httpx.Cookies, run_id: int, tiles: l
             try:
                 response = await client.request(method, url, **kwargs)
             except httpx.HTTPError as exc:
-                samples.errors.append(f"{method} {url}: {type(exc).__name__}")
+                samples.errors.append(f"{method} {url}: {type(exc).__name__}: {exc}")
+                samples.error_kinds[f"{kind} {type(exc).__name__}"] = samples.error_kinds.get(f"{kind} {type(exc).__name__}", 0) + 1
                 return None
             samples.add(kind, time.perf_counter() - started)
             if response.status_code >= 400:
                 samples.errors.append(f"{method} {url}: {response.status_code}")
+                samples.error_kinds[f"{kind} {response.status_code}"] = samples.error_kinds.get(f"{kind} {response.status_code}", 0) + 1
             return response
 
         await asyncio.sleep(rng.uniform(0, 1.0))  # operators do not all start at once
@@ -438,8 +448,9 @@ def main() -> None:
         load = asyncio.run(run_load(base, sessions, load_s, run_id, keys[-40:]))
         rows.append(Row(f"load: requests ({n_operators} operators, {load_s:.0f} s)", len(load.latencies_s), "",
                         None, note=f"{len(load.latencies_s) / load_s:.0f} req/s"))
+        kinds = ", ".join(f"{n} {k}" for k, n in sorted(load.error_kinds.items(), key=lambda kv: -kv[1]))
         rows.append(Row("load: errors", len(load.errors), "", None,
-                        note="target 0" + (f"; first: {load.errors[0]}" if load.errors else "")))
+                        note="target 0" + (f"; {kinds}; first: {load.errors[0][:160]}" if load.errors else "")))
         rows.append(Row("load: p50", load.p(50), "ms", None))
         rows.append(Row("load: p95", load.p(95), "ms", 250.0))
         for kind, latencies in sorted(load.by_kind.items()):
