@@ -42,11 +42,18 @@ async def preview(
     run_id: int, body: PreviewRequest, request: Request, principal: EditorUser, session: SessionDep, settings: SettingsDep,
 ) -> dict[str, Any]:
     """Re-optimise keyframes with proposed, uncommitted edits (refused moves are left out and listed)."""
-    run = await anyio.to_thread.run_sync(get_visible_run, session, principal, settings, run_id)
-    return await anyio.to_thread.run_sync(
-        lambda: service.preview(session, settings, run, body.base_revision, body.moves, body.deleted),
-        limiter=solver_limiter(request.app),
-    )
+    # A POST gets a writing session (on SQLite: BEGIN IMMEDIATE, the database's one write
+    # lock) that would stay open through the solve and queue every other writer and preview
+    # behind it. A preview writes nothing: end that transaction (the login check may have
+    # touched the session row) and read in a read-only one.
+    await anyio.to_thread.run_sync(session.commit)
+
+    def work() -> dict[str, Any]:
+        with request.app.state.db.transaction(write=False) as read:
+            run = get_visible_run(read, principal, settings, run_id)
+            return service.preview(read, settings, run, body.base_revision, body.moves, body.deleted)
+
+    return await anyio.to_thread.run_sync(work, limiter=solver_limiter(request.app))
 
 
 @router.post("/runs/{run_id}/edits", response_model=EditBatchAccepted, status_code=202, responses=responses(400, 401, 403, 404, 409, 415, 422))
