@@ -222,14 +222,13 @@ def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> Dri
 
 def preview_solve(problem: Problem, merged: dict[str, Any], base: Solution, warm: Solution | None) -> tuple[Solution, dict[str, Any]]:
     """A live-drag answer: a local solve around the dragged keyframes, warm-started from the
-    previous frame of the drag (or the base revision's exact solution), with the base
-    solution's drift estimate kept as it is.
+    previous frame of the drag (or the base revision's exact solution).
 
     The drift estimate of a new edit set reaches the whole run (one edit showing a GNSS
     bias down-weights every fix), which would make every first drag a full solve; the
     preview applies it only near the drag (``local_drift``) and leaves the rest to the
-    commit, whose worker solves the exact problem.  Returns the
-    solution and a description of what was solved (``local``: only a window was re-solved).
+    commit, whose worker solves the exact problem.  Returns the solution and a description
+    of what was solved (``local``: only a window was re-solved).
     """
     drift = local_drift(problem, merged, base)
     sol = solve(problem, merged, warm or base, local=True, drift=drift)
