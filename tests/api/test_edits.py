@@ -73,6 +73,27 @@ class TestPreview:
             far = [i for i in range(1001) if i < a or i > b]
             assert np.abs(pos[far] - xy[far]).max() < 1e-7  # outside the window: the base solution as served
 
+    def test_preview_with_deletions_after_the_revision_is_solved(self, client, users):
+        import time
+
+        from posefix.runs import correction
+
+        rid = new_run(client, users)
+        fc, xy = kf_coords(client, users["admin"], rid)
+        deadline = time.monotonic() + 60
+        while correction.PROBLEMS.solution(rid, fc["rules"], 0) is None:  # the base solution is cached
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        # Deleting keyframes drops rows from the solve: the base drift estimate no longer lines up.
+        for moves in ([], [{"index": 40, "lon": xy[40, 0] + 4 * METRE_LON, "lat": xy[40, 1]}]):
+            r = client.post(f"/api/v1/runs/{rid}/preview",
+                            json={"base_revision": 0, "moves": moves, "deleted": [20, 21, 22]}, headers=users["admin"])
+            assert r.status_code == 200, r.text
+            pos = np.array(r.json()["positions"])
+            assert pos.shape == (61, 2) and np.isfinite(pos[[0, 19, 23, 60]]).all()
+            if moves:
+                assert 3.0 < (pos[40, 0] - xy[40, 0]) / METRE_LON <= 4.01
+
     def test_preview_lists_refusals_and_leaves_them_out(self, client, users, app):
         rid = new_run(client, users)
         set_rules(app, rid, every_n=2)

@@ -174,12 +174,13 @@ _STEPS: weakref.WeakKeyDictionary[Problem, GnssSteps] = weakref.WeakKeyDictionar
 PREVIEW_DRIFT_KEYFRAMES = (30, 90)  # the new drift estimate in full within this many keyframes of a new edit, none beyond the second
 
 
-def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> DriftEstimate:
+def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> DriftEstimate | None:
     """The drift estimate of the new edit set near the keyframes whose edits differ from the
     base solution's, tapering linearly to the base solution's estimate further away.
 
     (k,) per-keyframe arrays; only on the default keyframes with none removed (otherwise the
-    base estimate as it is).  Near the drag the location terms are those the commit will see
+    base estimate as it is; None when keyframes are deleted, whose rows the base estimate
+    does not match).  Near the drag the location terms are those the commit will see
     (so the dragged keyframe follows the cursor); far away they stay as in the base solution,
     so the change is local and a window solve answers it.
     """
@@ -187,8 +188,11 @@ def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> Dri
     index = problem.keyframe_index
     k = len(index)
     moves = moves_of(merged)
-    if not cfg.drift.enabled or not moves or merged.get("deleted") or not bool(np.all(base.active)) \
-            or len(base.drift.bias_sigma_m) != k:
+    if merged.get("deleted") or not bool(np.all(base.active)) or len(base.drift.bias_sigma_m) != k:
+        # Deleted keyframes change the solve's rows: the base estimate no longer lines up,
+        # so let the solve estimate drift over the keyframes that remain.
+        return None
+    if not cfg.drift.enabled or not moves:
         return base.drift
     edit_kf = np.array([m.index for m in moves], dtype=np.int64)
     c_m = to_en(problem, moves)
