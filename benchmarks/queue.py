@@ -35,9 +35,9 @@ from pathlib import Path
 import httpx
 
 import subprocess
-import sys
 
 from benchmarks.server import Row, free_port, print_table
+from benchmarks.server import start_server as serve
 
 PG_URL = os.environ.get("POSEFIX_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 
@@ -104,23 +104,7 @@ def prepare(url: str, data_dir: Path, n_runs: int, n_operators: int) -> tuple[li
 
 def start_server(env: dict[str, str], port: int, log_path: Path, workers: int) -> subprocess.Popen:
     """``posefix serve`` with ``workers`` HTTP processes (several need PostgreSQL), no worker."""
-    log = open(log_path, "wb")
-    process = subprocess.Popen(
-        [str(Path(sys.executable).parent / "posefix"), "serve", "--host", "127.0.0.1", "--port", str(port), "--no-migrate",
-         "--workers", str(workers), "--no-embedded-worker"],
-        env={**os.environ, **env}, stdout=log, stderr=subprocess.STDOUT,
-    )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            raise RuntimeError(f"the server exited with {process.returncode}; see {log_path}")
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1).status_code == 200:
-                return process
-        except httpx.TransportError:
-            time.sleep(0.2)
-    process.kill()
-    raise RuntimeError(f"the server did not answer /healthz within 60 s; see {log_path}")
+    return serve(env, port, log_path, ("--workers", str(workers), "--no-embedded-worker"))
 
 
 class Stats:

@@ -111,10 +111,12 @@ def prepare_database(env: dict[str, str], n_operators: int) -> None:
         db.dispose()
 
 
-def start_server(env: dict[str, str], port: int, log_path: Path) -> subprocess.Popen:
+def start_server(env: dict[str, str], port: int, log_path: Path, extra_args: tuple[str, ...] = ()) -> subprocess.Popen:
+    """``posefix serve`` on loopback (``extra_args`` appended), once it answers /healthz."""
     log = open(log_path, "wb")
     process = subprocess.Popen(
-        [str(Path(sys.executable).parent / "posefix"), "serve", "--host", "127.0.0.1", "--port", str(port), "--no-migrate"],
+        [str(Path(sys.executable).parent / "posefix"), "serve", "--host", "127.0.0.1", "--port", str(port), "--no-migrate",
+         *extra_args],
         env={**os.environ, **env}, stdout=log, stderr=subprocess.STDOUT, cwd=REPO,
     )
     deadline = time.monotonic() + 60

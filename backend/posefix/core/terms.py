@@ -316,15 +316,7 @@ def location_hessian(terms: Terms, p_m: np.ndarray) -> np.ndarray:
     of Cauchy): a Newton model of the robust loss converges in a few steps where the
     Gauss-Newton model of the rewritten residual crawls.
     """
-    e = terms.loc_w * (p_m[terms.loc_idx] - terms.loc_g_m)
-    s = np.einsum("mi,mi->m", e, e)
-    c2 = terms.loss_scale**2
-    d1, d2 = loss_derivatives(s / c2, terms.loss)
-    along = np.maximum(d1 + 2.0 * d2 * s / c2, 0.1 * d1)
-    u = e / np.sqrt(np.maximum(s, 1e-300))[:, None]
-    uu = u[:, :, None] * u[:, None, :]
-    M = d1[:, None, None] * (np.eye(3) - uu) + along[:, None, None] * uu
-    return M * terms.loc_w[:, :, None] * terms.loc_w[:, None, :]
+    return location_model(terms, p_m)[1]
 
 
 def evaluate(terms: Terms, x: np.ndarray, with_jac: bool = True) -> Evaluation:
