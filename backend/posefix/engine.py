@@ -32,10 +32,20 @@ from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
-from posefix.core.solver import SolverResult, solve, solve_banded, solve_local_newton
+from posefix.core.solver import (
+    Linearisation,
+    SolverResult,
+    position_term_costs,
+    solve,
+    solve_banded,
+    solve_local_newton,
+)
 
 LOCAL_MARGIN = 30  # keyframes re-optimised beyond those whose terms changed (local solves) ...
 LOCAL_EDGE_M = 0.01  # ... and more (x3 each time) while the keyframes next to the held ones move more than this
+# A full solve keeps the model of its edit-independent terms for the next local solve up to this
+# many keyframes (72 doubles each: 2 MB at 3,600); beyond, a local solve linearises its window
+LINEARISE_MAX_KEYFRAMES = 20_000
 
 __all__ = [
     "CorrectionConfig",
@@ -80,6 +90,9 @@ class Solution:
     active: np.ndarray  # (k,) bool: keyframe took part in the optimisation
     flags: list[Refusal] = field(default_factory=list)
     terms: T.Terms | None = None  # the problem that was solved (for diagnostics, benchmarks)
+    # the relative and gravity terms' model at the last full solve's answer (see solver.Linearisation):
+    # a local solve warm-started from this solution re-uses it instead of linearising its window
+    linearisation: Linearisation | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -96,11 +109,13 @@ class Correction:
     x: np.ndarray | None = None  # the keyframe state solved for (for warm starts)
     active: np.ndarray | None = None
     terms: T.Terms | None = None
+    linearisation: Linearisation | None = field(default=None, repr=False, compare=False)
 
     @property
     def solution(self) -> Solution:
         """The keyframe-level solution behind this correction (a warm start for the next solve)."""
-        return Solution(self.keyframes, self.solver, self.drift, self.x, self.active, self.flags, self.terms)
+        return Solution(self.keyframes, self.solver, self.drift, self.x, self.active, self.flags, self.terms,
+                        self.linearisation)
 
 
 @dataclass(frozen=True)
@@ -328,10 +343,20 @@ class Problem:
         )
         x0 = self._warm_state(act_rows, p_rep, warm_start)
         result = None
+        lin = None
         if local and same_rows and warm_sol.terms is not None and cfg.solver.method == "banded":
-            x, result = self._solve_window(terms, warm_sol.terms, x0, warm_sol.solver)
+            lin = warm_sol.linearisation
+            if lin is not None and not lin.matches(terms):
+                lin = None
+            x, result = self._solve_window(terms, warm_sol.terms, x0, warm_sol.solver, lin)
         if result is None:
-            x, result = solve(terms, x0, cfg.solver.method, cfg.solver.max_iterations, cfg.solver.ftol)
+            if cfg.solver.method == "banded":
+                x, result = solve_banded(terms, x0, cfg.solver.max_iterations, cfg.solver.ftol,
+                                         linearise=len(act_rows) <= LINEARISE_MAX_KEYFRAMES)
+                lin = result.extra.pop("linearisation", None)
+            else:
+                x, result = solve(terms, x0, cfg.solver.method, cfg.solver.max_iterations, cfg.solver.ftol)
+                lin = None
         q_rep = self._reported_unit_quat(act_rows)
         window = result.extra.get("window_held")
         if window is not None and np.array_equal(warm_sol.keyframes.index, index) \
@@ -358,9 +383,10 @@ class Problem:
             reported_p_enu_m=self.p_enu_m[index], reported_q_wxyz=self.anchored_quat(index),
             edited=edited, deleted=deleted,
         )
-        return Solution(kfs, result, drift, x, active, list(flags or []), terms)
+        return Solution(kfs, result, drift, x, active, list(flags or []), terms, lin)
 
-    def _solve_window(self, terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: SolverResult):
+    def _solve_window(self, terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: SolverResult,
+                      lin: Linearisation | None = None):
         """Re-optimise only around the keyframes whose terms changed; None if that is most of the run.
 
         The window a..b (changed keyframes plus ``LOCAL_MARGIN``) is solved with a held
@@ -370,7 +396,9 @@ class Problem:
         lo..hi involves only states that did not move, so the full problem's cost is the
         previous solve's cost minus the old window terms' cost plus the new window's
         (exact up to the tolerance of ``changed_keyframes`` on terms outside the window);
-        no full-length evaluation is needed.
+        no full-length evaluation is needed.  ``lin``, the previous full solve's model of the
+        edit-independent terms, spares linearising the window (held ends are exact: their
+        blocks are replaced by the identity).
         """
         # a location term whose target moved by under a centimetre (its sigma is metres) moves the
         # solution by less than that: such changes are left to the next full solve
@@ -397,7 +425,12 @@ class Problem:
             fixed[0] = lo < a
             fixed[-1] = hi > b
             x_sub0 = xs[lo:hi + 1].ravel()
-            out = solve_local_newton(sub, x_sub0, fixed)
+            lin_w, before = None, None
+            if lin is not None:
+                lin_w = lin.window(lo, hi)
+                if np.array_equal(lin_w[0], x_sub0):  # warm from the solve that built it: costs known
+                    before = {**lin.window_costs(lo, hi), **position_term_costs(sub, xs[lo:hi + 1, :3])}
+            out = solve_local_newton(sub, x_sub0, fixed, linearisation=lin_w, cost_before=before)
             if out is None:
                 cfg = self.cfg.solver
                 # a local answer previews a change of metres: stopping when a step gains under
@@ -542,6 +575,7 @@ class Problem:
         return Correction(
             run=out, keyframes=kfs, solver=sol.solver, drift=sol.drift, kept_rows=kept, flags=sol.flags,
             propagation_time_s=time.perf_counter() - started, x=sol.x, active=sol.active, terms=sol.terms,
+            linearisation=sol.linearisation,
         )
 
 
@@ -552,13 +586,7 @@ def _window_costs_before(old_sub: T.Terms, x_sub0: np.ndarray, new_before: dict[
     relative and gravity terms depend on the keyframes alone), so those two are evaluated
     and the others are the new window's costs at the same start, ``new_before``.
     """
-    p_m = x_sub0.reshape(-1, 6)[:, :3]
-    loc_r, _, _ = T.location_residual(old_sub, p_m)
-    user_r = old_sub.user_w * (p_m[old_sub.user_idx] - old_sub.user_c_m)
-    costs = dict(new_before)
-    costs["location"] = 0.5 * float(np.einsum("ij,ij->", loc_r, loc_r))
-    costs["user"] = 0.5 * float(np.einsum("ij,ij->", user_r, user_r))
-    return costs
+    return {**new_before, **position_term_costs(old_sub, x_sub0.reshape(-1, 6)[:, :3])}
 
 
 def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:

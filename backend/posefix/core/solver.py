@@ -18,6 +18,7 @@ Both return the solution and a ``SolverResult``.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -65,6 +66,83 @@ class SolverResult:
         }
 
 
+@dataclass(frozen=True)
+class Linearisation:
+    """Gauss-Newton model of the edit-independent terms (relative translation, relative
+    rotation, gravity) of a solved run at its solution ``x_lin``.
+
+    Those terms depend on the keyframes alone, so the model built when a run is solved
+    serves the next local solve after one more edit, as iSAM2 keeps the linearisation of
+    its previous update: the local solve then only adds the location and user terms of its
+    window.  The model stays valid while orientations stay within about a milliradian of
+    ``x_lin`` (its error is of order (d theta)^2); ``solve_local_newton`` checks that.
+
+    x_lin (6k,) state it was built at; D (k,6,6) diagonal and U (k-1,6,6) upper
+    off-diagonal blocks of J^T J (U[i] couples keyframe i with i + 1); g (6k,) J^T r at
+    x_lin; cost_rt, cost_rr (k-1,), cost_g (k,) each term's cost 1/2 |r|^2 at x_lin per
+    edge / keyframe; rel_w_t, rel_w_r (k-1,), grav_w (k,) the weights it was built with (to
+    tell the terms it belongs to).  Read only: shared by every solution warm-started from it.
+    """
+
+    x_lin: np.ndarray
+    D: np.ndarray
+    U: np.ndarray
+    g: np.ndarray
+    cost_rt: np.ndarray
+    cost_rr: np.ndarray
+    cost_g: np.ndarray
+    rel_w_t: np.ndarray
+    rel_w_r: np.ndarray
+    grav_w: np.ndarray
+
+    def matches(self, terms: T.Terms) -> bool:
+        """True when ``terms`` has the same keyframes and edit-independent weights."""
+        return (
+            terms.n_keyframes == len(self.D)
+            and _same_array(self.rel_w_t, terms.rel_w_t)
+            and _same_array(self.rel_w_r, terms.rel_w_r)
+            and _same_array(self.grav_w, terms.grav_w)
+        )
+
+    def window(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(x_lin, D, U, g) of keyframes lo..hi (views).  The end blocks still hold the terms
+        linking lo - 1 and hi + 1: right only where those keyframes are held."""
+        return self.x_lin[6 * lo:6 * hi + 6], self.D[lo:hi + 1], self.U[lo:hi], self.g[6 * lo:6 * hi + 6]
+
+    def window_costs(self, lo: int, hi: int) -> dict[str, float]:
+        """Costs at x_lin of the edit-independent terms touching only keyframes lo..hi."""
+        return {
+            "relative_translation": float(self.cost_rt[lo:hi].sum()),
+            "relative_rotation": float(self.cost_rr[lo:hi].sum()),
+            "gravity": float(self.cost_g[lo:hi + 1].sum()),
+        }
+
+
+def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
+    return a is b or (a.shape == b.shape and bool(np.array_equal(a, b)))
+
+
+def linearise_fixed_terms(terms: T.Terms, ev: T.Evaluation) -> Linearisation:
+    """The ``Linearisation`` of ``terms`` at the state ``ev`` was evaluated at (with Jacobians)."""
+    no_user = dataclasses.replace(terms, user_idx=terms.user_idx[:0], user_c_m=terms.user_c_m[:0],
+                                  user_w=terms.user_w[:0])
+    ev_no_user = dataclasses.replace(ev, user_r=ev.user_r[:0], jac={**ev.jac, "user_p": ev.jac["user_p"][:0]})
+    D, U, g = T.normal_equations(no_user, ev_no_user, location=False)
+    x_lin = np.concatenate([ev.cache["p"], ev.cache["theta"]], axis=1).ravel()
+    costs = [0.5 * np.einsum("ij,ij->i", r, r) for r in (ev.rt_r, ev.rr_r, ev.grav_r)]
+    for arr in (x_lin, D, U, g, *costs):
+        arr.flags.writeable = False
+    return Linearisation(x_lin, D, U, g, *costs, terms.rel_w_t, terms.rel_w_r, terms.grav_w)
+
+
+def position_term_costs(terms: T.Terms, p_m: np.ndarray) -> dict[str, float]:
+    """Costs of the location and user terms (they depend on positions (k,3) alone)."""
+    loc_r, _, _ = T.location_residual(terms, p_m)
+    user_r = terms.user_w * (p_m[terms.user_idx] - terms.user_c_m)
+    return {"location": 0.5 * float(np.einsum("ij,ij->", loc_r, loc_r)),
+            "user": 0.5 * float(np.einsum("ij,ij->", user_r, user_r))}
+
+
 @functools.lru_cache(maxsize=8)
 def _band_index(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where the upper triangles of D blocks and all of U blocks go in the (12, 6k) band."""
@@ -110,11 +188,15 @@ def solve_banded(
     ftol: float = 1e-10,
     initial_lambda: float = 1e-6,
     fixed: np.ndarray | None = None,
+    linearise: bool = False,
 ) -> tuple[np.ndarray, SolverResult]:
     """Levenberg-Marquardt on the banded normal equations (fast path).
 
     ``fixed`` (k,) bool marks keyframes held at ``x0`` (boundary of a windowed solve): their
     rows and columns of the normal equations are replaced by the identity, so their step is 0.
+    ``linearise`` also returns, in ``extra["linearisation"]``, the ``Linearisation`` of the
+    edit-independent terms at the solution (for a later local solve; one more assembly of
+    the normal equations, from the Jacobians the last iteration left).
     """
     started = time.perf_counter()
     x = T.initial_state(terms) if x0 is None else np.array(x0, dtype=float, copy=True)
@@ -165,6 +247,9 @@ def solve_banded(
                 break
     if not np.isfinite(F):
         status, message = "failed", "cost is not finite"
+    extra = {"accepted_steps": accepted, "lambda": lam}
+    if linearise and np.isfinite(F):
+        extra["linearisation"] = linearise_fixed_terms(terms, ev if ev.jac else T.evaluate(terms, x))
     return x, SolverResult(
         status=status,
         message=message,
@@ -173,7 +258,7 @@ def solve_banded(
         cost_after=ev.costs() if ev.jac else T.evaluate(terms, x, with_jac=False).costs(),
         time_s=time.perf_counter() - started,
         method="banded-lm",
-        extra={"accepted_steps": accepted, "lambda": lam},
+        extra=extra,
     )
 
 
@@ -206,10 +291,26 @@ def _position_band_index() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     return BAND_U + a[upper] - b[upper], b[upper], a[upper], b[upper]
 
 
-def _newton_on_linearised(terms: T.Terms, ev: T.Evaluation, x_lin: np.ndarray, fixed, max_steps: int,
-                          step_tol_m: float) -> tuple[np.ndarray | None, int]:
-    """Inner loop of ``solve_local_newton``: other terms fixed at their model at ``x_lin``."""
-    D, U, g_c = T.normal_equations(terms, ev, location=False)
+def _model_from_linearisation(terms: T.Terms, lin: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(x_lin, D, U, g_c): a window's ``Linearisation.window`` plus ``terms``' user terms.
+
+    The user term ``W (p - c)`` is linear in p, so its Gauss-Newton model is exact: ``W^2``
+    on the position diagonal, ``W^2 (p_lin - c)`` in the gradient at x_lin.
+    """
+    x_lin, D, U, g = lin
+    D, U, g = D.copy(), U.copy(), g.copy()
+    ui = terms.user_idx
+    w2 = terms.user_w**2
+    D[ui, [[0], [1], [2]], [[0], [1], [2]]] += w2.T  # (each keyframe has at most one user term)
+    p_lin = x_lin.reshape(-1, 6)[ui, :3]
+    g.reshape(-1, 6)[ui, :3] += w2 * np.where(w2 > 0, p_lin - terms.user_c_m, 0.0)
+    return x_lin, D, U, g
+
+
+def _newton_on_model(terms: T.Terms, D: np.ndarray, U: np.ndarray, g_c: np.ndarray, x_lin: np.ndarray,
+                     x_start: np.ndarray, fixed, max_steps: int, step_tol_m: float) -> tuple[np.ndarray | None, int]:
+    """Inner loop of ``solve_local_newton``: every term but location by its model at ``x_lin``
+    (normal equations D, U and gradient g_c there; D, U are modified), from ``x_start``."""
     loc_idx = terms.loc_idx
     loc_free = np.ones(len(loc_idx), dtype=bool)
     if fixed is not None:
@@ -227,7 +328,7 @@ def _newton_on_linearised(terms: T.Terms, ev: T.Evaluation, x_lin: np.ndarray, f
     band_cols = 6 * li[:, None] + col_off[None, :]
     g_rows = 6 * li[:, None] + np.arange(3)[None, :]
     fixed_rows = None if fixed is None else (6 * np.flatnonzero(fixed)[:, None] + np.arange(6)[None, :]).ravel()
-    x = x_lin.copy()
+    x = x_start.copy()
     for step in range(1, max_steps + 1):
         g_loc, H_loc = T.location_model(terms, x.reshape(-1, 6)[:, :3])
         g = g_c + banded_matvec(D, U, x - x_lin)
@@ -252,6 +353,8 @@ def solve_local_newton(
     fixed: np.ndarray | None = None,
     max_steps: int = 8,
     step_tol_m: float = 0.02,
+    linearisation: tuple | None = None,
+    cost_before: dict[str, float] | None = None,
 ) -> tuple[np.ndarray, SolverResult] | None:
     """Newton steps from a warm start with only the location term re-linearised (one more edit).
 
@@ -261,30 +364,42 @@ def solve_local_newton(
     only the robust location term, whose re-weighting is the real non-linearity, is
     re-evaluated at each step.  Each step solves
 
-        (H_c + H_loc(x)) dx = -(g_c + H_c (x - x0) + g_loc(x))
+        (H_c + H_loc(x)) dx = -(g_c + H_c (x - x_lin) + g_loc(x))
 
-    with ``H_c, g_c`` the banded normal equations of the other terms at ``x0`` (packed once)
+    with ``H_c, g_c`` the banded normal equations of the other terms at ``x_lin`` (packed once)
     and ``g_loc, H_loc`` the location term's gradient and Newton Hessian
     (``terms.location_model``), until a step moves no position by more than ``step_tol_m``;
     the steps shrink by a factor of 20 or more each near the optimum, so the answer is then
     within about a millimetre of it.  Should the orientations have moved by more than a
-    milliradian after all, the other terms are linearised again there and the steps go on.
-    The true cost is evaluated once at the end.
+    milliradian from x_lin after all, the other terms are linearised again there and the
+    steps go on.  The true cost is evaluated once at the end.
+
+    ``linearisation`` = (x_lin, D, U, g) of the edit-independent terms over these keyframes
+    (``Linearisation.window``; x_lin may differ from x0, e.g. the solved run before one more
+    edit): then nothing is linearised at x0 and only the user terms are added to it.
+    ``cost_before`` (the costs at x0, per term) saves evaluating them when known.
 
     Returns None when the steps do not settle within ``max_steps`` or do not lower the
     cost (a far start: use ``solve_banded``).  ``fixed`` holds keyframes at ``x0``.
     """
     started = time.perf_counter()
     x = np.array(x0, dtype=float, copy=True)
-    before = None
+    before = cost_before
     steps = 0
     for _outer in range(3):
-        x_lin = x.copy()
-        # the location term's Jacobian is not needed: it is re-modelled at every step
-        ev = T.add_jacobians(terms, T.evaluate(terms, x_lin, with_jac=False), location=False)
-        if before is None:
-            before = ev.costs()
-        x, n = _newton_on_linearised(terms, ev, x_lin, fixed, max_steps - steps, step_tol_m)
+        if linearisation is not None:
+            x_lin, D, U, g_c = _model_from_linearisation(terms, linearisation)
+            linearisation = None
+            if before is None:
+                before = T.evaluate(terms, x, with_jac=False).costs()
+        else:
+            x_lin = x.copy()
+            # the location term's Jacobian is not needed: it is re-modelled at every step
+            ev = T.add_jacobians(terms, T.evaluate(terms, x_lin, with_jac=False), location=False)
+            if before is None:
+                before = ev.costs()
+            D, U, g_c = T.normal_equations(terms, ev, location=False)
+        x, n = _newton_on_model(terms, D, U, g_c, x_lin, x, fixed, max_steps - steps, step_tol_m)
         if x is None:
             return None
         steps += n
