@@ -405,6 +405,7 @@ class Problem:
         changed = T.changed_keyframes(terms, old, tol_m=0.01, tol_rel=0.01)
         if changed is None:
             return None, None
+        changed |= _reweighted_keyframes(terms, old, tol_rel=0.01)
         k = terms.n_keyframes
         hit = np.flatnonzero(changed)
         started = time.perf_counter()
@@ -428,8 +429,8 @@ class Problem:
             lin_w, before = None, None
             if lin is not None:
                 lin_w = lin.window(lo, hi)
-                if np.array_equal(lin_w[0], x_sub0):  # warm from the solve that built it: costs known
-                    before = {**lin.window_costs(lo, hi), **position_term_costs(sub, xs[lo:hi + 1, :3])}
+                if np.array_equal(lin_w.x_lin, x_sub0):  # warm from the solve that built it: costs known
+                    before = {**lin.window_costs(lo, hi, sub.rel_w_t), **position_term_costs(sub, xs[lo:hi + 1, :3])}
             out = solve_local_newton(sub, x_sub0, fixed, linearisation=lin_w, cost_before=before)
             if out is None:
                 cfg = self.cfg.solver
@@ -446,7 +447,7 @@ class Problem:
             margin *= 3
         x = xs.copy()
         x[lo:hi + 1] = x_sub.reshape(-1, 6)
-        old_window = _window_costs_before(T.window_terms(old, lo, hi), x_sub0, res.cost_before)
+        old_window = _window_costs_before(T.window_terms(old, lo, hi), sub, x_sub0, res.cost_before)
         rest = {name: old_result.cost_after[name] - old_window[name] for name in T.TERM_NAMES}
         before = {name: rest[name] + res.cost_before[name] for name in T.TERM_NAMES}
         after = {name: rest[name] + res.cost_after[name] for name in T.TERM_NAMES}
@@ -579,14 +580,34 @@ class Problem:
         )
 
 
-def _window_costs_before(old_sub: T.Terms, x_sub0: np.ndarray, new_before: dict[str, float]) -> dict[str, float]:
+def _window_costs_before(old_sub: T.Terms, new_sub: T.Terms, x_sub0: np.ndarray,
+                         new_before: dict[str, float]) -> dict[str, float]:
     """Cost of the previous problem's window terms at the warm start, per term.
 
-    Only the location and user terms differ between the previous and the new problem (the
-    relative and gravity terms depend on the keyframes alone), so those two are evaluated
-    and the others are the new window's costs at the same start, ``new_before``.
+    The location and user terms differ between the previous and the new problem, so those
+    two are evaluated; the relative and gravity terms are the new window's costs at the same
+    start, ``new_before``, unless the edits changed their weights in the window (then all
+    are evaluated).
     """
+    same = all(a is b or np.array_equal(a, b) for a, b in (
+        (old_sub.rel_w_t, new_sub.rel_w_t), (old_sub.rel_w_r, new_sub.rel_w_r), (old_sub.grav_w, new_sub.grav_w)))
+    if not same:
+        return T.evaluate(old_sub, x_sub0, with_jac=False).costs()
     return {**new_before, **position_term_costs(old_sub, x_sub0.reshape(-1, 6)[:, :3])}
+
+
+def _reweighted_keyframes(new: T.Terms, old: T.Terms, tol_rel: float) -> np.ndarray:
+    """(k,) bool: keyframes of relative terms (both ends) or gravity terms whose weight differs
+    by more than ``tol_rel`` between two problems on the same keyframes (edit-dependent weights)."""
+    out = np.zeros(new.n_keyframes, dtype=bool)
+    for w_new, w_old in ((new.rel_w_t, old.rel_w_t), (new.rel_w_r, old.rel_w_r)):
+        if w_new is not w_old:
+            e = np.flatnonzero(np.abs(w_new - w_old) > tol_rel * np.abs(w_old))
+            out[e] = True
+            out[e + 1] = True
+    if new.grav_w is not old.grav_w:
+        out |= np.abs(new.grav_w - old.grav_w) > tol_rel * np.abs(old.grav_w)
+    return out
 
 
 def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:

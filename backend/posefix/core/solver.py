@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import LinAlgError, get_lapack_funcs, solveh_banded
 
+from posefix.core import rotations as rot
 from posefix.core import terms as T
 
 BAND_U = 11  # super-diagonals of a block-tridiagonal matrix with 6x6 blocks
@@ -68,20 +69,21 @@ class SolverResult:
 
 @dataclass(frozen=True)
 class Linearisation:
-    """Gauss-Newton model of the edit-independent terms (relative translation, relative
-    rotation, gravity) of a solved run at its solution ``x_lin``.
+    """Gauss-Newton model of the relative and gravity terms of a solved run at its solution ``x_lin``.
 
-    Those terms depend on the keyframes alone, so the model built when a run is solved
-    serves the next local solve after one more edit, as iSAM2 keeps the linearisation of
-    its previous update: the local solve then only adds the location and user terms of its
-    window.  The model stays valid while orientations stay within about a milliradian of
-    ``x_lin`` (its error is of order (d theta)^2); ``solve_local_newton`` checks that.
+    Those terms depend (almost) on the keyframes alone, so the model built when a run is
+    solved serves the next local solve after one more edit, as iSAM2 keeps the linearisation
+    of its previous update: the local solve then only adds the location and user terms of
+    its window (and re-weights any relative-translation edge whose weight the edits changed).
+    The model stays valid while orientations stay within about a milliradian of ``x_lin``
+    (its error is of order (d theta)^2); ``solve_local_newton`` checks that.
 
     x_lin (6k,) state it was built at; D (k,6,6) diagonal and U (k-1,6,6) upper
     off-diagonal blocks of J^T J (U[i] couples keyframe i with i + 1); g (6k,) J^T r at
     x_lin; cost_rt, cost_rr (k-1,), cost_g (k,) each term's cost 1/2 |r|^2 at x_lin per
-    edge / keyframe; rel_w_t, rel_w_r (k-1,), grav_w (k,) the weights it was built with (to
-    tell the terms it belongs to).  Read only: shared by every solution warm-started from it.
+    edge / keyframe; rel_w_t, rel_w_r (k-1,), grav_w (k,) the weights it was built with;
+    R_rep, rel_delta_m the reported poses' arrays it was built on (to tell its keyframes).
+    Read only: shared by every solution warm-started from it.
     """
 
     x_lin: np.ndarray
@@ -94,28 +96,50 @@ class Linearisation:
     rel_w_t: np.ndarray
     rel_w_r: np.ndarray
     grav_w: np.ndarray
+    R_rep: np.ndarray
+    rel_delta_m: np.ndarray
 
     def matches(self, terms: T.Terms) -> bool:
-        """True when ``terms`` has the same keyframes and edit-independent weights."""
+        """True when ``terms`` lies on the same keyframes with the same reported motion and the
+        same rotation and gravity weights (relative-translation weights may differ: see window)."""
         return (
             terms.n_keyframes == len(self.D)
-            and _same_array(self.rel_w_t, terms.rel_w_t)
+            and _same_array(self.R_rep, terms.R_rep)
+            and _same_array(self.rel_delta_m, terms.rel_delta_m)
             and _same_array(self.rel_w_r, terms.rel_w_r)
             and _same_array(self.grav_w, terms.grav_w)
         )
 
-    def window(self, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(x_lin, D, U, g) of keyframes lo..hi (views).  The end blocks still hold the terms
-        linking lo - 1 and hi + 1: right only where those keyframes are held."""
-        return self.x_lin[6 * lo:6 * hi + 6], self.D[lo:hi + 1], self.U[lo:hi], self.g[6 * lo:6 * hi + 6]
+    def window(self, lo: int, hi: int) -> "WindowModel":
+        """The model on keyframes lo..hi (views).  The end blocks still hold the terms linking
+        lo - 1 and hi + 1: right only where those keyframes are held."""
+        return WindowModel(self.x_lin[6 * lo:6 * hi + 6], self.D[lo:hi + 1], self.U[lo:hi],
+                           self.g[6 * lo:6 * hi + 6], self.rel_w_t[lo:hi])
 
-    def window_costs(self, lo: int, hi: int) -> dict[str, float]:
-        """Costs at x_lin of the edit-independent terms touching only keyframes lo..hi."""
+    def window_costs(self, lo: int, hi: int, rel_w_t: np.ndarray | None = None) -> dict[str, float]:
+        """Costs at x_lin of the relative and gravity terms touching only keyframes lo..hi;
+        with ``rel_w_t`` (hi - lo,) those of the relative-translation terms re-weighted
+        (a whitened residual's cost goes with its weight squared)."""
+        cost_rt = self.cost_rt[lo:hi]
+        if rel_w_t is not None and rel_w_t is not self.rel_w_t[lo:hi]:
+            cost_rt = cost_rt * (rel_w_t / self.rel_w_t[lo:hi]) ** 2
         return {
-            "relative_translation": float(self.cost_rt[lo:hi].sum()),
+            "relative_translation": float(cost_rt.sum()),
             "relative_rotation": float(self.cost_rr[lo:hi].sum()),
             "gravity": float(self.cost_g[lo:hi + 1].sum()),
         }
+
+
+@dataclass(frozen=True)
+class WindowModel:
+    """``Linearisation`` on a window: x_lin (6n,), D (n,6,6), U (n-1,6,6), g (6n,), and the
+    relative-translation weights (n-1,) it was built with."""
+
+    x_lin: np.ndarray
+    D: np.ndarray
+    U: np.ndarray
+    g: np.ndarray
+    rel_w_t: np.ndarray
 
 
 def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
@@ -132,7 +156,44 @@ def linearise_fixed_terms(terms: T.Terms, ev: T.Evaluation) -> Linearisation:
     costs = [0.5 * np.einsum("ij,ij->i", r, r) for r in (ev.rt_r, ev.rr_r, ev.grav_r)]
     for arr in (x_lin, D, U, g, *costs):
         arr.flags.writeable = False
-    return Linearisation(x_lin, D, U, g, *costs, terms.rel_w_t, terms.rel_w_r, terms.grav_w)
+    return Linearisation(x_lin, D, U, g, *costs, terms.rel_w_t, terms.rel_w_r, terms.grav_w, terms.R_rep,
+                         terms.rel_delta_m)
+
+
+def _reweight_relative_translation(terms: T.Terms, x_lin: np.ndarray, edges: np.ndarray, scale: np.ndarray,
+                                   D: np.ndarray, U: np.ndarray, g: np.ndarray) -> None:
+    """Add ``scale`` (m,) times the unit-weight Gauss-Newton blocks of the relative-translation
+    terms on ``edges`` (m,) at ``x_lin`` to D, U, g (in place).
+
+    With ``e = R_i^T (p_j - p_i) - D_ij`` the unit-weight Jacobian rows are ``[P, T, -P, 0]``
+    over (p_i, theta_i, p_j, theta_j), ``P = -R_i^T``, ``T = [R_i^T (p_j - p_i)]x Jr(theta_i)``
+    (as in ``terms.normal_equations``); a term of weight w contributes w^2 times them, so a
+    change of weight from w to w' adds (w'^2 - w^2) times them.
+    """
+    xs = x_lin.reshape(-1, 6)
+    i = edges
+    theta = xs[i, 3:]
+    R = terms.R_rep[i] @ rot.quat_to_matrix(rot.exp_quat(theta))
+    RT = np.swapaxes(R, 1, 2)
+    b = np.einsum("kij,kj->ki", RT, xs[i + 1, :3] - xs[i, :3])
+    Tt = rot.skew(b) @ rot.right_jacobian(theta)
+    e = b - terms.rel_delta_m[i]
+    P = -RT
+    PtT = np.swapaxes(P, 1, 2) @ Tt
+    s = scale[:, None, None]
+    eye = s * np.eye(3)
+    D[i, :3, :3] += eye
+    D[i, :3, 3:] += s * PtT
+    D[i, 3:, :3] += s * np.swapaxes(PtT, 1, 2)
+    D[i, 3:, 3:] += s * (np.swapaxes(Tt, 1, 2) @ Tt)
+    D[i + 1, :3, :3] += eye
+    U[i, :3, :3] -= eye
+    U[i, 3:, :3] -= s * np.swapaxes(PtT, 1, 2)
+    gs = g.reshape(-1, 6)
+    Pte = scale[:, None] * np.einsum("mri,mr->mi", P, e)
+    gs[i, :3] += Pte
+    gs[i + 1, :3] -= Pte
+    gs[i, 3:] += scale[:, None] * np.einsum("mri,mr->mi", Tt, e)
 
 
 def position_term_costs(terms: T.Terms, p_m: np.ndarray) -> dict[str, float]:
@@ -291,14 +352,20 @@ def _position_band_index() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     return BAND_U + a[upper] - b[upper], b[upper], a[upper], b[upper]
 
 
-def _model_from_linearisation(terms: T.Terms, lin: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(x_lin, D, U, g_c): a window's ``Linearisation.window`` plus ``terms``' user terms.
+def _model_from_linearisation(terms: T.Terms, lin: WindowModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(x_lin, D, U, g_c): a window's ``Linearisation`` plus ``terms``' user terms (copies).
 
     The user term ``W (p - c)`` is linear in p, so its Gauss-Newton model is exact: ``W^2``
-    on the position diagonal, ``W^2 (p_lin - c)`` in the gradient at x_lin.
+    on the position diagonal, ``W^2 (p_lin - c)`` in the gradient at x_lin.  Relative-
+    translation edges whose weight differs from the model's are re-weighted.
     """
-    x_lin, D, U, g = lin
-    D, U, g = D.copy(), U.copy(), g.copy()
+    x_lin = lin.x_lin
+    D, U, g = lin.D.copy(), lin.U.copy(), lin.g.copy()
+    if terms.rel_w_t is not lin.rel_w_t:
+        edges = np.flatnonzero(terms.rel_w_t != lin.rel_w_t)
+        if len(edges):
+            _reweight_relative_translation(terms, x_lin, edges, terms.rel_w_t[edges] ** 2 - lin.rel_w_t[edges] ** 2,
+                                           D, U, g)
     ui = terms.user_idx
     w2 = terms.user_w**2
     D[ui, [[0], [1], [2]], [[0], [1], [2]]] += w2.T  # (each keyframe has at most one user term)
@@ -353,7 +420,7 @@ def solve_local_newton(
     fixed: np.ndarray | None = None,
     max_steps: int = 8,
     step_tol_m: float = 0.02,
-    linearisation: tuple | None = None,
+    linearisation: WindowModel | None = None,
     cost_before: dict[str, float] | None = None,
 ) -> tuple[np.ndarray, SolverResult] | None:
     """Newton steps from a warm start with only the location term re-linearised (one more edit).
@@ -374,9 +441,9 @@ def solve_local_newton(
     milliradian from x_lin after all, the other terms are linearised again there and the
     steps go on.  The true cost is evaluated once at the end.
 
-    ``linearisation`` = (x_lin, D, U, g) of the edit-independent terms over these keyframes
-    (``Linearisation.window``; x_lin may differ from x0, e.g. the solved run before one more
-    edit): then nothing is linearised at x0 and only the user terms are added to it.
+    ``linearisation`` (``Linearisation.window`` over these keyframes; its x_lin may differ from
+    x0, e.g. the solved run before one more edit): then nothing is linearised at x0, only the
+    user terms are added to it (and relative-translation edges re-weighted).
     ``cost_before`` (the costs at x0, per term) saves evaluating them when known.
 
     Returns None when the steps do not settle within ``max_steps`` or do not lower the
