@@ -78,17 +78,15 @@ class Linearisation:
     The model stays valid while orientations stay within about a milliradian of ``x_lin``
     (its error is of order (d theta)^2); ``solve_local_newton`` checks that.
 
-    x_lin (6k,) state it was built at; D (k,6,6) diagonal and U (k-1,6,6) upper
-    off-diagonal blocks of J^T J (U[i] couples keyframe i with i + 1); g (6k,) J^T r at
-    x_lin; cost_rt, cost_rr (k-1,), cost_g (k,) each term's cost 1/2 |r|^2 at x_lin per
+    x_lin (6k,) state it was built at; ab (12, 6k) J^T J in LAPACK's upper band form
+    (``pack_banded``, Fortran order); g (6k,) J^T r at x_lin; cost_rt, cost_rr (k-1,), cost_g (k,) each term's cost 1/2 |r|^2 at x_lin per
     edge / keyframe; rel_w_t, rel_w_r (k-1,), grav_w (k,) the weights it was built with;
     R_rep, rel_delta_m the reported poses' arrays it was built on (to tell its keyframes).
     Read only: shared by every solution warm-started from it.
     """
 
     x_lin: np.ndarray
-    D: np.ndarray
-    U: np.ndarray
+    ab: np.ndarray
     g: np.ndarray
     cost_rt: np.ndarray
     cost_rr: np.ndarray
@@ -103,7 +101,7 @@ class Linearisation:
         """True when ``terms`` lies on the same keyframes with the same reported motion and the
         same rotation and gravity weights (relative-translation weights may differ: see window)."""
         return (
-            terms.n_keyframes == len(self.D)
+            terms.n_keyframes == len(self.g) // 6
             and _same_array(self.R_rep, terms.R_rep)
             and _same_array(self.rel_delta_m, terms.rel_delta_m)
             and _same_array(self.rel_w_r, terms.rel_w_r)
@@ -113,7 +111,7 @@ class Linearisation:
     def window(self, lo: int, hi: int) -> "WindowModel":
         """The model on keyframes lo..hi (views).  The end blocks still hold the terms linking
         lo - 1 and hi + 1: right only where those keyframes are held."""
-        return WindowModel(self.x_lin[6 * lo:6 * hi + 6], self.D[lo:hi + 1], self.U[lo:hi],
+        return WindowModel(self.x_lin[6 * lo:6 * hi + 6], self.ab[:, 6 * lo:6 * hi + 6],
                            self.g[6 * lo:6 * hi + 6], self.rel_w_t[lo:hi])
 
     def window_costs(self, lo: int, hi: int, rel_w_t: np.ndarray | None = None) -> dict[str, float]:
@@ -132,12 +130,11 @@ class Linearisation:
 
 @dataclass(frozen=True)
 class WindowModel:
-    """``Linearisation`` on a window: x_lin (6n,), D (n,6,6), U (n-1,6,6), g (6n,), and the
+    """``Linearisation`` on a window: x_lin (6n,), ab (12, 6n), g (6n,), and the
     relative-translation weights (n-1,) it was built with."""
 
     x_lin: np.ndarray
-    D: np.ndarray
-    U: np.ndarray
+    ab: np.ndarray
     g: np.ndarray
     rel_w_t: np.ndarray
 
@@ -152,11 +149,12 @@ def linearise_fixed_terms(terms: T.Terms, ev: T.Evaluation) -> Linearisation:
                                   user_w=terms.user_w[:0])
     ev_no_user = dataclasses.replace(ev, user_r=ev.user_r[:0], jac={**ev.jac, "user_p": ev.jac["user_p"][:0]})
     D, U, g = T.normal_equations(no_user, ev_no_user, location=False)
+    ab = np.asfortranarray(pack_banded(D, U))
     x_lin = np.concatenate([ev.cache["p"], ev.cache["theta"]], axis=1).ravel()
     costs = [0.5 * np.einsum("ij,ij->i", r, r) for r in (ev.rt_r, ev.rr_r, ev.grav_r)]
-    for arr in (x_lin, D, U, g, *costs):
+    for arr in (x_lin, ab, g, *costs):
         arr.flags.writeable = False
-    return Linearisation(x_lin, D, U, g, *costs, terms.rel_w_t, terms.rel_w_r, terms.grav_w, terms.R_rep,
+    return Linearisation(x_lin, ab, g, *costs, terms.rel_w_t, terms.rel_w_r, terms.grav_w, terms.R_rep,
                          terms.rel_delta_m)
 
 
@@ -352,43 +350,70 @@ def _position_band_index() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
     return BAND_U + a[upper] - b[upper], b[upper], a[upper], b[upper]
 
 
-def _model_from_linearisation(terms: T.Terms, lin: WindowModel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(x_lin, D, U, g_c): a window's ``Linearisation`` plus ``terms``' user terms (copies).
+def _model_from_linearisation(terms: T.Terms, lin: WindowModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x_lin, ab, g_c): a window's ``Linearisation`` plus ``terms``' user terms (copies).
 
     The user term ``W (p - c)`` is linear in p, so its Gauss-Newton model is exact: ``W^2``
     on the position diagonal, ``W^2 (p_lin - c)`` in the gradient at x_lin.  Relative-
     translation edges whose weight differs from the model's are re-weighted.
     """
     x_lin = lin.x_lin
-    D, U, g = lin.D.copy(), lin.U.copy(), lin.g.copy()
+    ab = np.array(lin.ab, order="F", copy=True)
+    g = lin.g.copy()
     if terms.rel_w_t is not lin.rel_w_t:
         edges = np.flatnonzero(terms.rel_w_t != lin.rel_w_t)
         if len(edges):
+            n = terms.n_keyframes
+            dD, dU = np.zeros((n, 6, 6)), np.zeros((n - 1, 6, 6))
             _reweight_relative_translation(terms, x_lin, edges, terms.rel_w_t[edges] ** 2 - lin.rel_w_t[edges] ** 2,
-                                           D, U, g)
+                                           dD, dU, g)
+            ab += pack_banded(dD, dU)
     ui = terms.user_idx
     w2 = terms.user_w**2
-    D[ui, [[0], [1], [2]], [[0], [1], [2]]] += w2.T  # (each keyframe has at most one user term)
+    ab[BAND_U, (6 * ui[:, None] + np.arange(3)).ravel()] += w2.ravel()  # (at most one user term per keyframe)
     p_lin = x_lin.reshape(-1, 6)[ui, :3]
     g.reshape(-1, 6)[ui, :3] += w2 * np.where(w2 > 0, p_lin - terms.user_c_m, 0.0)
-    return x_lin, D, U, g
+    return x_lin, ab, g
 
 
-def _newton_on_model(terms: T.Terms, D: np.ndarray, U: np.ndarray, g_c: np.ndarray, x_lin: np.ndarray,
+@functools.cache
+def _blas_sbmv():
+    """BLAS symmetric band matrix-vector product (double precision), looked up once."""
+    from scipy.linalg import get_blas_funcs
+
+    return get_blas_funcs(("sbmv",), (np.zeros(1),))[0]
+
+
+def band_matvec(ab: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A v for A symmetric in upper band form ab (12, 6k) (as ``banded_matvec`` on D, U)."""
+    return _blas_sbmv()(BAND_U, 1.0, ab, v, lower=0)
+
+
+def _hold_in_band(ab: np.ndarray, fixed: np.ndarray) -> None:
+    """Replace the rows and columns of the ``fixed`` keyframes (k,) bool by the identity, in place."""
+    h = np.flatnonzero(fixed)
+    cols = (6 * h[:, None] + np.arange(6)).ravel()
+    ab[:, cols] = 0.0  # a keyframe's columns hold its diagonal block and its coupling to the one before
+    ab[BAND_U, cols] = 1.0
+    # its coupling to the next keyframe: entry (6h + r, 6(h + 1) + c) sits in band row BAND_U - 6 + r - c
+    nxt = h[h + 1 < len(fixed)]
+    r, c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+    ab[(BAND_U - 6 + r - c).ravel()[None, :], 6 * (nxt[:, None] + 1) + c.ravel()[None, :]] = 0.0
+
+
+def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: np.ndarray,
                      x_start: np.ndarray, fixed, max_steps: int, step_tol_m: float) -> tuple[np.ndarray | None, int]:
     """Inner loop of ``solve_local_newton``: every term but location by its model at ``x_lin``
-    (normal equations D, U and gradient g_c there; D, U are modified), from ``x_start``."""
+    (J^T J as band ab_c (12, 6n), Fortran order, and gradient g_c there), from ``x_start``."""
     loc_idx = terms.loc_idx
     loc_free = np.ones(len(loc_idx), dtype=bool)
+    ab_s = np.array(ab_c, order="F", copy=True)  # the matrix solved: held keyframes fixed, damped
     if fixed is not None:
-        D[fixed] = np.eye(6)
-        U[fixed[:-1] | fixed[1:]] = 0.0
+        _hold_in_band(ab_s, fixed)
         loc_free = ~fixed[loc_idx]
-    diag = np.einsum("kii->ki", D).ravel()
     # a hair of damping keeps the factorisation positive definite where a keyframe has only
     # relative constraints (no fix, no edit)
-    # Fortran order: LAPACK takes it as is, each step's copy is the only copy
-    ab_c = np.asfortranarray(pack_banded(D, U, 1e-9 * np.maximum(diag, 1e-12)))
+    ab_s[BAND_U] += 1e-9 * np.maximum(ab_s[BAND_U], 1e-12)
     rows, col_off, ia, ib = _position_band_index()
     li = loc_idx[loc_free]
     band_rows = np.broadcast_to(rows, (len(li), len(rows)))
@@ -398,11 +423,13 @@ def _newton_on_model(terms: T.Terms, D: np.ndarray, U: np.ndarray, g_c: np.ndarr
     x = x_start.copy()
     for step in range(1, max_steps + 1):
         g_loc, H_loc = T.location_model(terms, x.reshape(-1, 6)[:, :3])
-        g = g_c + banded_matvec(D, U, x - x_lin)
+        # the model's gradient with the full matrix: a held keyframe away from x_lin (a window
+        # solved before moved it) still pulls its free neighbour
+        g = g_c + band_matvec(ab_c, x - x_lin)
         g[g_rows] += g_loc[loc_free]
         if fixed_rows is not None:
             g[fixed_rows] = 0.0
-        ab = ab_c.copy(order="F")
+        ab = ab_s.copy(order="F")
         ab[band_rows, band_cols] += H_loc[loc_free][:, ia, ib]
         try:
             dx = solve_banded_spd(ab, -g)
@@ -455,7 +482,7 @@ def solve_local_newton(
     steps = 0
     for _outer in range(3):
         if linearisation is not None:
-            x_lin, D, U, g_c = _model_from_linearisation(terms, linearisation)
+            x_lin, ab_c, g_c = _model_from_linearisation(terms, linearisation)
             linearisation = None
             if before is None:
                 before = T.evaluate(terms, x, with_jac=False).costs()
@@ -466,7 +493,8 @@ def solve_local_newton(
             if before is None:
                 before = ev.costs()
             D, U, g_c = T.normal_equations(terms, ev, location=False)
-        x, n = _newton_on_model(terms, D, U, g_c, x_lin, x, fixed, max_steps - steps, step_tol_m)
+            ab_c = np.asfortranarray(pack_banded(D, U))
+        x, n = _newton_on_model(terms, ab_c, g_c, x_lin, x, fixed, max_steps - steps, step_tol_m)
         if x is None:
             return None
         steps += n
