@@ -41,6 +41,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+import orjson
 
 REPO = Path(__file__).resolve().parents[1]
 ADMIN = ("bench-admin", "bench-admin-password")
@@ -310,12 +311,29 @@ def login_operators(base: str, n_operators: int) -> list[httpx.Cookies]:
     return sessions
 
 
+def adjustable_features(features: list[dict]) -> list[dict]:
+    return [f for f in features if f["properties"]["adjustable"] and not f["properties"]["locked"]] or features
+
+
 async def operator_loop(base: str, cookies: httpx.Cookies, run_id: int, tiles: list[tuple[int, int, int]],
                         stop_at: float, samples: Samples, seed: int) -> None:
+    """One operator's browser tab.
+
+    It behaves as a browser does, no more: one pooled keep-alive client (a browser keeps its
+    connections open), ``Accept-Encoding: gzip`` (httpx's default, as every browser's), and
+    on reloading the keyframes it revalidates what it has with ``If-None-Match: <ETag>`` (a
+    browser does that by itself for a ``Cache-Control: no-cache`` response) and keeps its
+    copy on 304. That is realism, not a shortcut: every reload is still a request the server
+    answers after checking the session and access. The generator parses the GeoJSON only
+    when it gets a new one (with orjson) and never parses preview or tile bodies (they are
+    read to the end, as a browser would), so it spends little CPU beside the server on a
+    shared machine.
+    """
     rng = random.Random(seed)
     async with httpx.AsyncClient(base_url=base, headers={"Origin": base}, cookies=cookies, timeout=30) as client:
-        features: list[dict] = []
+        candidates: list[dict] = []
         revision = 0
+        etag: str | None = None
 
         async def request(kind: str, method: str, url: str, **kwargs: object) -> httpx.Response | None:
             started = time.perf_counter()
@@ -333,14 +351,17 @@ async def operator_loop(base: str, cookies: httpx.Cookies, run_id: int, tiles: l
 
         await asyncio.sleep(rng.uniform(0, 1.0))  # operators do not all start at once
         while time.perf_counter() < stop_at:
-            if not features or rng.random() < 0.1:
-                response = await request("keyframes", "GET", f"/api/v1/runs/{run_id}/keyframes")
+            if not candidates or rng.random() < 0.1:
+                headers = {"If-None-Match": etag} if etag and candidates else {}
+                response = await request("keyframes", "GET", f"/api/v1/runs/{run_id}/keyframes", headers=headers)
                 if response is not None and response.status_code == 200:
-                    collection = response.json()
-                    features, revision = collection["features"], collection["revision"]
+                    collection = orjson.loads(response.content)
+                    candidates, revision = adjustable_features(collection["features"]), collection["revision"]
+                    etag = response.headers.get("etag")
             elif rng.random() < 0.6:
                 await request("preview", "POST", f"/api/v1/runs/{run_id}/preview",
-                              json=preview_body(features, revision, rng))
+                              content=orjson.dumps(preview_body(candidates, revision, rng), option=orjson.OPT_SERIALIZE_NUMPY),
+                              headers={"Content-Type": "application/json"})
             else:
                 start = rng.randrange(len(tiles))
                 for z, x, y in (tiles * 2)[start:start + 6]:
@@ -356,6 +377,16 @@ async def run_load(base: str, sessions: list[httpx.Cookies], seconds: float, run
         operator_loop(base, cookies, run_id, tiles, stop_at, samples, seed=i) for i, cookies in enumerate(sessions)
     ))
     return samples
+
+
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) a process and its reaped children have used (Linux /proc)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    utime, stime, cutime, cstime = (int(v) for v in fields[11:15])
+    return (utime + stime + cutime + cstime) / os.sysconf("SC_CLK_TCK")
 
 
 def latency_buckets(base: str) -> dict[tuple[str, str], dict[float, float]]:
@@ -472,13 +503,20 @@ def main() -> None:
         print(f"· load: {n_operators} operators for {load_s:.0f} s", flush=True)
         sessions = login_operators(base, n_operators)
         before = latency_buckets(base)
+        cpu_before, server_cpu_before = time.process_time(), process_cpu_s(server.pid)
         load = asyncio.run(run_load(base, sessions, load_s, run_id, keys[-40:]))
+        generator_cpu = (time.process_time() - cpu_before) / load_s
+        server_cpu = (process_cpu_s(server.pid) - server_cpu_before) / load_s
+        load_during = os.getloadavg()[0]  # the 1-minute average: nearly the load run's own minute
         after = latency_buckets(base)
         rows.append(Row(f"load: requests ({n_operators} operators, {load_s:.0f} s)", len(load.latencies_s), "",
                         None, note=f"{len(load.latencies_s) / load_s:.0f} req/s"))
         kinds = ", ".join(f"{n} {k}" for k, n in sorted(load.error_kinds.items(), key=lambda kv: -kv[1]))
         rows.append(Row("load: errors", len(load.errors), "", None,
                         note="target 0" + (f"; {kinds}; first: {load.errors[0][:160]}" if load.errors else "")))
+        rows.append(Row("load: CPU of the load generator", 100 * generator_cpu, "%", None,
+                        note=f"of one core; server process {100 * server_cpu:.0f} %; {os.cpu_count()} CPUs, "
+                             f"load average {load_during:.1f} at the end of the load"))
         rows.append(Row("load: p50", load.p(50), "ms", None))
         rows.append(Row("load: p95", load.p(95), "ms", 250.0))
         routes = {"keyframes": ("GET", "/runs/{run_id}/keyframes"), "preview": ("POST", "/runs/{run_id}/preview"),

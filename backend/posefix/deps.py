@@ -40,10 +40,17 @@ def get_session(request: Request) -> Iterator[Session]:
         yield session
 
 
+def get_read_session(request: Request) -> Iterator[Session]:
+    """A reading unit of work whatever the method (a POST that writes nothing, e.g. a preview)."""
+    with request.app.state.db.transaction(write=False) as session:
+        yield session
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DatabaseDep = Annotated[Database, Depends(get_database)]
 # scope="function": commit before the response is sent, so a failed commit is an error response.
 SessionDep = Annotated[Session, Depends(get_session, scope="function")]
+ReadSessionDep = Annotated[Session, Depends(get_read_session, scope="function")]
 
 
 def solver_limiter(app: Any) -> anyio.CapacityLimiter:
@@ -93,9 +100,10 @@ def check_json_body(request: Request) -> None:
         )
 
 
-def authenticate(request: Request, session: Session, settings: Settings, *, allow_multipart: bool) -> Principal:
+def authenticate(request: Request, session: Session, settings: Settings, *, allow_multipart: bool,
+                 read_only: bool = False) -> Principal:
     db: Database = request.app.state.db
-    write_session = session if request.method not in SAFE_METHODS else None
+    write_session = session if request.method not in SAFE_METHODS and not read_only else None
     auth = request.headers.get("authorization")
     if auth:
         scheme, _, value = auth.partition(" ")
@@ -116,11 +124,13 @@ def authenticate(request: Request, session: Session, settings: Settings, *, allo
     return principal
 
 
-def require(*roles: Role, allow_multipart: bool = False) -> Callable[..., Principal]:
+def require(*roles: Role, allow_multipart: bool = False, read_only: bool = False) -> Callable[..., Principal]:
+    """``read_only``: the route writes nothing (its session is a reading one even on POST, so on
+    SQLite it does not take the database's one write lock; the session touch is its own)."""
     allowed = frozenset(roles)
 
-    def dependency(request: Request, session: SessionDep, settings: SettingsDep) -> Principal:
-        principal = authenticate(request, session, settings, allow_multipart=allow_multipart)
+    def check(request: Request, session: Session, settings: Settings) -> Principal:
+        principal = authenticate(request, session, settings, allow_multipart=allow_multipart, read_only=read_only)
         if principal.role not in allowed:
             raise Forbidden(
                 f"role {principal.role.value} may not do this (needs {', '.join(sorted(r.value for r in allowed))})",
@@ -129,7 +139,15 @@ def require(*roles: Role, allow_multipart: bool = False) -> Callable[..., Princi
         request.state.user_id = principal.user_id
         return principal
 
-    return dependency
+    def dependency(request: Request, session: SessionDep, settings: SettingsDep) -> Principal:
+        return check(request, session, settings)
+
+    def reading_dependency(request: Request, session: ReadSessionDep, settings: SettingsDep) -> Principal:
+        principal = check(request, session, settings)
+        session.commit()  # end the read: no connection held while the route waits (e.g. for a solver)
+        return principal
+
+    return reading_dependency if read_only else dependency
 
 
 ALL_ROLES = tuple(Role)
@@ -137,5 +155,6 @@ AnyUser = Annotated[Principal, Depends(require(*ALL_ROLES))]
 AdminUser = Annotated[Principal, Depends(require(Role.admin))]
 ReviewerUser = Annotated[Principal, Depends(require(Role.admin, Role.reviewer))]
 EditorUser = Annotated[Principal, Depends(require(Role.admin, Role.reviewer, Role.operator))]
+EditorReader = Annotated[Principal, Depends(require(Role.admin, Role.reviewer, Role.operator, read_only=True))]
 UploaderUser = Annotated[Principal, Depends(require(Role.admin, Role.client, allow_multipart=True))]
 OwnerUser = Annotated[Principal, Depends(require(Role.admin, Role.client))]

@@ -18,6 +18,7 @@ from sqlalchemy import func, select, update
 from posefix.jobs import repository as jobs
 from posefix.jobs.models import Job
 from posefix.jobs.registry import PermanentJobError, register
+from posefix.runs import storage
 from posefix.runs.models import Revision
 from posefix.worker.runner import Worker, backoff_s
 from tests.conftest import drive_csv, upload
@@ -239,5 +240,6 @@ class TestIdempotentRevision:
         with app.state.db.transaction(write=False) as s:
             revs = s.scalars(select(Revision).where(Revision.run_id == rid, Revision.number == 1)).all()
         assert len(revs) == 1
-        files = sorted(p.name for p in (settings.files_dir / "runs" / str(rid)).iterdir() if p.name.startswith("r1-"))
-        assert files == sorted([Path(revs[0].samples_file).name, Path(revs[0].keyframes_file).name])
+        files = sorted(p.name for p in (settings.files_dir / "runs" / str(rid)).iterdir() if "r1-" in p.name)
+        assert files == sorted([Path(revs[0].samples_file).name, Path(revs[0].keyframes_file).name,
+                                Path(storage.solution_rel(revs[0].keyframes_file)).name])

@@ -34,6 +34,9 @@ REVISION_JOB = "revision"
 
 
 def load_problem(session: Session, settings: Settings, run: Run) -> Problem:
+    cached = correction.PROBLEMS.peek(run.id, run.rules)
+    if cached is not None:
+        return cached
     rev0 = runs_repo.revision(session, run.id, 0)
     if rev0 is None:
         raise NotFound(f"run {run.id} has no imported data", code="revision_not_found")
@@ -60,13 +63,36 @@ def edit_set_at(session: Session, run: Run, revision: int) -> dict[str, Any]:
     return batch.edit_set
 
 
+def revision_base(session: Session, settings: Settings, run: Run, revision: int) -> tuple[dict[str, Any], str | None]:
+    """A revision's edit set and, once it is ready, its keyframes file (beside which its
+    solution is stored). Ready revisions never change, so they are remembered in-process."""
+    key = (settings.files_dir.as_posix(), run.id, revision)
+    cached = correction.PROBLEMS.revision(key)
+    if cached is not None:
+        return cached
+    rev = runs_repo.revision(session, run.id, revision)
+    if rev is None:
+        return edit_set_at(session, run, revision), None
+    value = (correction.EMPTY_EDIT_SET if revision == 0 else rev.edit_set, rev.keyframes_file)
+    correction.PROBLEMS.put_revision(key, value)
+    return value
+
+
+def stored_solution(settings: Settings, run: Run, keyframes_file: str | None) -> correction.StoredSolution | None:
+    if keyframes_file is None:
+        return None
+    return correction.StoredSolution.of(settings, keyframes_file, correction.engine_config(settings, run.rules))
+
+
 def _moves(moves: list[MoveIn]) -> list[correction.BatchMove]:
     return [correction.BatchMove(m.index, m.lon, m.lat, m.alt) for m in moves]
 
 
 def preview(session: Session, settings: Settings, run: Run, base_revision: int, moves: list[MoveIn], deleted: list[int]) -> dict[str, Any]:
+    """The preview of a batch on ``base_revision``; ``positions`` is a (k, 2) lon/lat array
+    (the endpoint serialises it without making 7,000 Python floats)."""
     started = time.perf_counter()
-    base = edit_set_at(session, run, base_revision)
+    base, keyframes_file = revision_base(session, settings, run, base_revision)
     problem = load_problem(session, settings, run)
     batch_moves = _moves(moves)
     check = correction.check_batch(problem, run.rules, base, batch_moves, deleted)
@@ -75,16 +101,18 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
     kept = [m for m in batch_moves if m.index in accepted_idx]
     merged = correction.merge(base, kept, [d for d in deleted if d not in refused_deleted], check.flags)
     # Warm start: the previous frame of the same drag, else the base revision's exact solution
-    # (solved once and cached); the engine then re-solves only around what changed.
+    # (stored with the revision, or solved once per process); the engine then re-solves only
+    # around what changed.
     drag_key = (run.id, json.dumps(run.rules, sort_keys=True), base_revision,
                 tuple(m[0] for m in merged["moves"]), tuple(merged["deleted"]))
-    base_sol, base_solved = correction.base_solution_state(run.id, run.rules, base_revision, problem, base)
+    base_sol, base_solved = correction.base_solution_state(
+        run.id, run.rules, base_revision, problem, base, stored_solution(settings, run, keyframes_file))
     sol, info = correction.preview_solve(problem, merged, base_sol, correction.PROBLEMS.preview_solution(drag_key))
     correction.PROBLEMS.put_preview_solution(drag_key, sol)
     lon, lat, _ = correction.keyframe_lonlatalt(problem, sol)
     return {
         "base_revision": base_revision,
-        "positions": np.round(np.stack([lon, lat], axis=1), 8).tolist(),
+        "positions": np.round(np.stack([lon, lat], axis=1), 8),
         "solver": correction.solver_json(sol),
         "preview": {**info, "base_solved_in_request": base_solved},
         "drift": correction.drift_json(sol),
@@ -104,10 +132,11 @@ def prewarm(db: Any, settings: Settings, run_id: int, revision: int) -> None:
                 return
             if correction.PROBLEMS.solution(run.id, run.rules, revision) is not None:
                 return
-            base = edit_set_at(session, run, revision)
+            base, keyframes_file = revision_base(session, settings, run, revision)
             problem = load_problem(session, settings, run)
             rules = dict(run.rules)
-        correction.base_solution(run_id, rules, revision, problem, base)
+            stored = stored_solution(settings, run, keyframes_file)
+        correction.base_solution(run_id, rules, revision, problem, base, stored)
 
     correction.warm_once(run_id, revision, work)
 

@@ -1,25 +1,53 @@
 """Worker job ``revision``: re-optimise a run with a batch's edit set, propagate to every
 sample and write revision N exactly once.
 
-Idempotent: if revision N already exists the job only reports it; files are written under a
-unique tag first, and if the row insert loses to another run of the same job (unique
-``(run_id, number)``) this run's files are removed.
+Idempotent: if revision N already exists the job only reports it. Files are written under a
+unique tag, each to a temporary name renamed into place, and count only once the revision's
+row is committed (unique ``(run_id, number)``). Whoever finds the row committed (the run that
+committed it, a run that lost the race, a re-run after a worker died mid-job) removes every
+other file of revision N: those of runs that died before committing, half-written
+temporaries included. Revisions whose job died for good are swept by the worker's cleanup
+(``sweep_dead_revision_jobs``).
 """
 
 from __future__ import annotations
 
+import logging
 import uuid
 from typing import Any
 
+from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
 
+from posefix.config import Settings
+from posefix.db import Database
 from posefix.edits import repository as edits_repo
 from posefix.edits.service import REVISION_JOB
-from posefix.jobs.registry import JobContext, PermanentJobError, register
+from posefix.jobs.models import Job, JobStatus
+from posefix.jobs.registry import JobContext, PermanentJobError, register, register_cleanup
 from posefix.runs import correction, storage
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Revision, Run
 
+log = logging.getLogger("posefix.worker")
+
+
+def committed_files(db: Database, run_id: int, number: int) -> set[str] | None:
+    """The files of revision ``number``'s committed row, or None when it has no row."""
+    with db.transaction(write=False) as s:
+        rev = runs_repo.revision(s, run_id, number)
+        return None if rev is None else {rev.samples_file, rev.keyframes_file}
+
+
+def sweep_after_commit(db: Database, fs: storage.FileStore, run_id: int, number: int) -> list[str]:
+    """Once revision ``number`` is committed: remove every file of it its row does not name."""
+    keep = committed_files(db, run_id, number)
+    if keep is None:
+        return []
+    removed = storage.sweep_revision_files(fs, run_id, number, keep)
+    if removed:
+        log.info("run %s revision %s: removed %d files of uncommitted attempts", run_id, number, len(removed))
+    return removed
 
 
 @register(REVISION_JOB)
@@ -32,24 +60,28 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
     fs = storage.FileStore(settings.files_dir)
     with ctx.db.transaction(write=False) as s:
         existing = runs_repo.revision(s, run_id, number)
-        if existing is not None:
-            return {"run_id": run_id, "revision": number, "already_written": True}
         run = s.get(Run, run_id)
         batch = edits_repo.batch(s, batch_id)
         rev0 = runs_repo.revision(s, run_id, 0)
-        if run is None or batch is None or rev0 is None:
+        if existing is None and (run is None or batch is None or rev0 is None):
             raise PermanentJobError(f"run {run_id} or batch {batch_id} no longer exists")
-        rules, name, derived = dict(run.rules), run.name, run.orientation_derived
-        edit_set, author = dict(batch.edit_set), batch.author_id
-        kind = batch.kind
-        samples0 = rev0.samples_file
-        prev_number = batch.base_revision
+        if existing is None:
+            assert run is not None and batch is not None and rev0 is not None
+            rules, name, derived = dict(run.rules), run.name, run.orientation_derived
+            edit_set, author = dict(batch.edit_set), batch.author_id
+            kind = batch.kind
+            samples0 = rev0.samples_file
+            prev_number = batch.base_revision
+    if existing is not None:
+        removed = sweep_after_commit(ctx.db, fs, run_id, number)
+        return {"run_id": run_id, "revision": number, "already_written": True, "removed_files": len(removed)}
 
     ctx.progress(0.05, "loading run")
+    cfg = correction.engine_config(settings, rules)
 
     def load() -> tuple[Any, Any]:
         pose = storage.read_samples(fs, samples0, orientation_derived=derived, source=name)
-        return pose, correction.engine_config(settings, rules)
+        return pose, cfg
 
     problem = correction.PROBLEMS.problem(run_id, rules, load)
     ctx.progress(0.2, "optimising keyframes")
@@ -64,9 +96,21 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
         line_lon_deg=line_lon, line_lat_deg=line_lat,
     )
     ctx.progress(0.8, "writing revision")
-    tag = uuid.uuid4().hex[:8]
-    samples_rel = storage.write_samples(fs, f"runs/{run_id}/r{number}-{tag}.parquet", corr.run)
-    kf_rel = storage.write_keyframes(fs, f"runs/{run_id}/r{number}-{tag}.npz", arrays)
+    stem = f"runs/{run_id}/r{number}-{uuid.uuid4().hex[:8]}"
+    samples_rel, kf_rel = f"{stem}.parquet", f"{stem}.npz"
+    stored = correction.StoredSolution.of(settings, kf_rel, cfg)
+    mine = (samples_rel, kf_rel, stored.rel)
+    try:
+        storage.write_samples(fs, samples_rel, corr.run)
+        storage.write_keyframes(fs, kf_rel, arrays)
+        stored.save(sol)  # previews in every API process start from it instead of solving again
+    except OSError:
+        # Another run of this job may have committed meanwhile and swept our temporaries.
+        for rel in mine:
+            fs.remove(rel)
+        if committed_files(ctx.db, run_id, number) is not None:
+            return {"run_id": run_id, "revision": number, "already_written": True}
+        raise
     rep_lon, rep_lat = problem.run.lon_deg[problem.keyframe_index], problem.run.lat_deg[problem.keyframe_index]
     max_corr = float(correction.horizontal_distance_m(rep_lon, rep_lat, lon, lat).max())
     solver, drift = correction.solver_json(sol), correction.drift_json(sol)
@@ -84,12 +128,40 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
                              detail={"batch_id": batch_id, "job_id": ctx.job_id, "solver_status": solver["status"],
                                      "max_correction_m": round(max_corr, 3)})
     except IntegrityError:
-        fs.remove(samples_rel)
-        fs.remove(kf_rel)
+        for rel in mine:
+            fs.remove(rel)
+        sweep_after_commit(ctx.db, fs, run_id, number)
         return {"run_id": run_id, "revision": number, "already_written": True}
+    removed = sweep_after_commit(ctx.db, fs, run_id, number)
     correction.PROBLEMS.put_solution(run_id, rules, number, sol)
     return {"run_id": run_id, "revision": number, "already_written": False, "solver": solver,
-            "max_correction_m": max_corr}
+            "max_correction_m": max_corr, "removed_files": len(removed)}
 
 
-__all__ = ["compute_revision"]
+@register_cleanup
+def sweep_dead_revision_jobs(db: Database, settings: Settings) -> int:
+    """Remove the files of revisions whose job is dead (they will never be committed: the
+    run's head has moved past them), once per job; returns how many files were removed."""
+    fs = storage.FileStore(settings.files_dir)
+    with db.transaction(write=False) as s:
+        dead = s.execute(
+            select(Job.id, Job.payload).where(Job.kind == REVISION_JOB, Job.status == JobStatus.dead, Job.result.is_(None))
+            .order_by(Job.id).limit(100)
+        ).all()
+    total = 0
+    for job_id, payload in dead:
+        removed: list[str] = []
+        try:
+            run_id, number = int(payload["run_id"]), int(payload["revision"])
+        except (KeyError, TypeError, ValueError):
+            run_id = number = -1
+        if run_id >= 0 and committed_files(db, run_id, number) is None:
+            removed = storage.sweep_revision_files(fs, run_id, number, set())
+        with db.transaction() as s:
+            s.execute(update(Job).where(Job.id == job_id, Job.status == JobStatus.dead, Job.result.is_(None))
+                      .values(result={"removed_files": removed}))
+        total += len(removed)
+    return total
+
+
+__all__ = ["compute_revision", "sweep_dead_revision_jobs"]

@@ -49,6 +49,23 @@ def register(kind: str) -> Callable[[Handler], Handler]:
     return deco
 
 
+Cleanup = Callable[[Database, Settings], int]
+_CLEANUPS: list[Cleanup] = []
+
+
+def register_cleanup(fn: Cleanup) -> Cleanup:
+    """A housekeeping step the worker runs now and then (e.g. remove files of dead jobs):
+    ``fn(db, settings) -> number of things cleaned``; it must be safe to run concurrently."""
+    if fn not in _CLEANUPS:
+        _CLEANUPS.append(fn)
+    return fn
+
+
+def cleanups() -> list[Cleanup]:
+    load_handlers()
+    return list(_CLEANUPS)
+
+
 def handler_for(kind: str) -> Handler | None:
     load_handlers()
     return _HANDLERS.get(kind)

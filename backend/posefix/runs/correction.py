@@ -6,13 +6,17 @@ the engine's default keyframes, ``Problem.keyframe_index``)::
     {"moves": [[k, lon, lat, alt_or_null], ...], "deleted": [k, ...], "flags": [{index, reason, message}]}
 
 A prepared ``Problem`` per run (and rules) is cached in-process, with the last solution per
-revision for warm starts, so a live-drag preview only runs the keyframe solve.
+revision for warm starts, so a live-drag preview only runs the keyframe solve. The solution of
+each revision is also stored beside its files (``storage.write_solution``): the worker writes
+it with the revision, and any API process loads it instead of solving the revision again.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+import logging
 import threading
 import weakref
 from collections import OrderedDict
@@ -29,6 +33,9 @@ from posefix.core.rules import EditRules, KeyframeMove, Refusal, RuleCheck, chec
 from posefix.core.drift import DriftEstimate, GnssSteps, estimate_drift, gnss_steps, step_window
 from posefix.core.run import PoseRun
 from posefix.engine import CorrectionConfig, Problem, Solution, prepare
+from posefix.runs import storage
+
+log = logging.getLogger("posefix.correction")
 
 EMPTY_EDIT_SET: dict[str, Any] = {"moves": [], "deleted": [], "flags": []}
 
@@ -47,6 +54,38 @@ def engine_config(settings: Settings, rules: dict[str, Any] | None = None) -> Co
 
 def default_rules(settings: Settings) -> dict[str, Any]:
     return engine_config(settings).rules.to_json()
+
+
+def config_fingerprint(cfg: CorrectionConfig) -> str:
+    """Identifies the engine configuration a stored solution was solved with."""
+    text = json.dumps(cfg.to_dict(), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class StoredSolution:
+    """Where a ready revision's solution is stored (``None`` for a revision still computing)."""
+
+    store: storage.FileStore
+    rel: str
+    fingerprint: str
+
+    @classmethod
+    def of(cls, settings: Settings, keyframes_rel: str, cfg: CorrectionConfig) -> "StoredSolution":
+        return cls(storage.FileStore(settings.files_dir), storage.solution_rel(keyframes_rel), config_fingerprint(cfg))
+
+    def load(self, problem: Problem) -> Solution | None:
+        sol = storage.read_solution(self.store, self.rel, self.fingerprint)
+        if not isinstance(sol, Solution) or not np.array_equal(sol.keyframes.index, problem.keyframe_index):
+            return None
+        return sol
+
+    def save(self, sol: Solution) -> None:
+        """Best effort: the file is a cache, a failure only costs another process a solve."""
+        try:
+            storage.write_solution(self.store, self.rel, sol, self.fingerprint)
+        except (OSError, TypeError, ValueError):
+            log.warning("could not store the solution %s", self.rel, exc_info=True)
 
 
 @dataclass(frozen=True)
@@ -69,6 +108,25 @@ class ProblemCache:
         # The last preview per (run, rules, base revision, edited keyframes): the warm start of
         # the next frame of the same drag, so the engine can re-solve locally.
         self._previews: OrderedDict[tuple[Any, ...], Solution] = OrderedDict()
+        # Ready revisions never change: their edit set and keyframes file, so a preview does
+        # not read the revision row again (key: file store, run, revision number).
+        self._revisions: OrderedDict[tuple[Any, ...], tuple[dict[str, Any], str]] = OrderedDict()
+
+    def peek(self, run_id: int, rules: dict[str, Any]) -> Problem | None:
+        """The prepared problem if it is cached (no loading)."""
+        with self._lock:
+            return self._problems.get((run_id, json.dumps(rules, sort_keys=True)))
+
+    def revision(self, key: tuple[Any, ...]) -> tuple[dict[str, Any], str] | None:
+        with self._lock:
+            return self._revisions.get(key)
+
+    def put_revision(self, key: tuple[Any, ...], value: tuple[dict[str, Any], str]) -> None:
+        with self._lock:
+            self._revisions[key] = value
+            self._revisions.move_to_end(key)
+            while len(self._revisions) > 64 * self.size:
+                self._revisions.popitem(last=False)
 
     def problem(self, run_id: int, rules: dict[str, Any], load: Callable[[], tuple[PoseRun, CorrectionConfig]]) -> Problem:
         key = (run_id, json.dumps(rules, sort_keys=True))
@@ -120,6 +178,7 @@ class ProblemCache:
             self._problems.clear()
             self._solutions.clear()
             self._previews.clear()
+            self._revisions.clear()
 
     def forget(self, run_id: int) -> None:
         with self._lock:
@@ -129,6 +188,8 @@ class ProblemCache:
                 del self._solutions[skey]
             for pkey in [k for k in self._previews if k[0] == run_id]:
                 del self._previews[pkey]
+            for rkey in [k for k in self._revisions if k[1] == run_id]:
+                del self._revisions[rkey]
 
 
 PROBLEMS = ProblemCache()
@@ -141,12 +202,14 @@ _base_gates_lock = threading.Lock()
 
 
 def base_solution_state(run_id: int, rules: dict[str, Any], revision: int, problem: Problem,
-                        edit_set: dict[str, Any]) -> tuple[Solution, bool]:
+                        edit_set: dict[str, Any], stored: StoredSolution | None = None) -> tuple[Solution, bool]:
     """The exact solution of a revision's edit set (cached) and whether this call solved it.
 
     One full solve per (run, rules, revision) and process: concurrent callers (the warm-up
     after the keyframes were served, the worker writing the revision, previews) wait for
-    the one that is solving instead of solving again.
+    the one that is solving instead of solving again. A ready revision's solution is read
+    from its file (``stored``) when the worker (or another process) stored it; a solve here
+    stores it for the others.
     """
     sol = PROBLEMS.solution(run_id, rules, revision)
     if sol is not None:
@@ -158,16 +221,22 @@ def base_solution_state(run_id: int, rules: dict[str, Any], revision: int, probl
         sol = PROBLEMS.solution(run_id, rules, revision)
         if sol is not None:
             return sol, False
-        sol = solve(problem, edit_set, None)
+        sol = stored.load(problem) if stored is not None else None
+        solved = sol is None
+        if sol is None:
+            sol = solve(problem, edit_set, None)
+            if stored is not None:
+                stored.save(sol)
         PROBLEMS.put_solution(run_id, rules, revision, sol)
     with _base_gates_lock:
         _base_gates.pop(key, None)
-    return sol, True
+    return sol, solved
 
 
-def base_solution(run_id: int, rules: dict[str, Any], revision: int, problem: Problem, edit_set: dict[str, Any]) -> Solution:
+def base_solution(run_id: int, rules: dict[str, Any], revision: int, problem: Problem, edit_set: dict[str, Any],
+                  stored: StoredSolution | None = None) -> Solution:
     """The exact solution of a revision's edit set (cached): the warm start of its previews."""
-    return base_solution_state(run_id, rules, revision, problem, edit_set)[0]
+    return base_solution_state(run_id, rules, revision, problem, edit_set, stored)[0]
 
 
 _STEPS: weakref.WeakKeyDictionary[Problem, GnssSteps] = weakref.WeakKeyDictionary()  # GNSS steps on a problem's default keyframes

@@ -157,24 +157,54 @@ def delete_run(run_id: int, principal: OwnerUser, session: SessionDep, settings:
     return Response(status_code=204)
 
 
-@router.get("/runs/{run_id}/keyframes", responses={200: {"content": {"application/geo+json": {}}}, **responses(401, 404, 409)})
+def accepts_gzip(accept_encoding: str | None) -> bool:
+    """``Accept-Encoding`` allows gzip (named, or ``*``, with a q-value above 0)."""
+    for part in (accept_encoding or "").lower().split(","):
+        coding, *params = (p.strip() for p in part.split(";"))
+        if coding not in ("gzip", "*"):
+            continue
+        q = 1.0
+        for param in params:
+            if param.startswith("q="):
+                try:
+                    q = float(param[2:])
+                except ValueError:
+                    q = 0.0
+        return q > 0.0
+    return False
+
+
+@router.get("/runs/{run_id}/keyframes", responses={200: {"content": {"application/geo+json": {}}}, 304: {"description": "Not Modified (If-None-Match)"}, **responses(401, 404, 409)})
 def get_keyframes(
     run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep, request: Request,
     background: BackgroundTasks, revision: Annotated[int | None, Query(ge=0, le=10**9)] = None,
 ) -> Response:
-    """Keyframes of a revision (default: the latest ready) as a GeoJSON FeatureCollection."""
+    """Keyframes of a revision (default: the latest ready) as a GeoJSON FeatureCollection.
+
+    Rendered once per revision; a strong ``ETag`` answers ``If-None-Match`` with 304 (what a
+    browser sends when it reloads), and gzip is sent to clients that accept it.
+    """
     run = get_visible_run(session, principal, settings, run_id)
-    body = service.keyframes_geojson(session, settings, run, revision)
+    rendered = service.keyframes_geojson(session, settings, run, revision)
     if principal.role in (Role.admin, Role.reviewer, Role.operator) and run.head_revision == (revision if revision is not None else run.revision) \
             and correction.PROBLEMS.solution(run.id, run.rules, run.head_revision) is None:
-        # An editor is about to drag: solve this revision now, after the response is sent.
+        # An editor is about to drag: solve (or load) this revision now, after the response is sent.
         from posefix.edits.service import prewarm
 
         async def presolve(app: Any = request.app, run_id: int = run.id, number: int = run.head_revision) -> None:
             await anyio.to_thread.run_sync(prewarm, app.state.db, settings, run_id, number, limiter=solver_limiter(app))
 
         background.add_task(presolve)
-    return Response(body, media_type="application/geo+json")
+    # private: the run is access-checked; no-cache: revalidate each time (the ETag makes that cheap)
+    headers = {"Cache-Control": "private, no-cache", "Vary": "Accept-Encoding"}
+    gzipped = accepts_gzip(request.headers.get("accept-encoding"))
+    headers["ETag"] = rendered.gzip_etag if gzipped else rendered.etag
+    if rendered.matches(request.headers.get("if-none-match")):
+        return Response(status_code=304, headers=headers, background=background)
+    if gzipped:
+        headers["Content-Encoding"] = "gzip"
+        return Response(rendered.gzip_body, media_type="application/geo+json", headers=headers, background=background)
+    return Response(rendered.body, media_type="application/geo+json", headers=headers, background=background)
 
 
 @router.get("/runs/{run_id}/export", responses={200: {"content": {"text/csv": {}, "application/gpx+xml": {}, "application/geo+json": {}}}, **responses(401, 404, 409, 422)})

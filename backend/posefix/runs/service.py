@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import datetime as dt
+import gzip
+import hashlib
 import json
 import threading
 import uuid
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
+import orjson
 from sqlalchemy.orm import Session
 
 from posefix.config import Settings
@@ -165,15 +169,39 @@ def ready_revision(session: Session, run: Run, number: int | None) -> Revision:
     return rev
 
 
+@dataclass(frozen=True)
+class RenderedGeoJson:
+    """A keyframes GeoJSON rendered once: the bytes, gzip-compressed bytes and a strong ETag
+    (a hash of the bytes; the gzip representation's tag has a ``-gz`` suffix)."""
+
+    body: bytes
+    gzip_body: bytes
+    etag: str
+
+    @property
+    def gzip_etag(self) -> str:
+        return self.etag[:-1] + '-gz"'
+
+    def matches(self, if_none_match: str | None) -> bool:
+        """``If-None-Match`` names this content (either representation; weak comparison)."""
+        if not if_none_match:
+            return False
+        tags = {t.strip().removeprefix("W/") for t in if_none_match.split(",")}
+        return "*" in tags or self.etag in tags or self.gzip_etag in tags
+
+
 class _GeoJsonCache:
-    """Rendered keyframes GeoJSON per (run, revision, images version): revisions never change."""
+    """Rendered keyframes GeoJSON per (file store, run, revision, head, rules): revisions never
+    change. One thread renders a key; others asking for it meanwhile wait for that render
+    (50 operators opening a run at once would otherwise render it 50 times)."""
 
     def __init__(self, size: int = 16):
         self.size = size
-        self._data: OrderedDict[tuple[Any, ...], bytes] = OrderedDict()
+        self._data: OrderedDict[tuple[Any, ...], RenderedGeoJson] = OrderedDict()
         self._lock = threading.Lock()
+        self._rendering: dict[tuple[Any, ...], threading.Lock] = {}
 
-    def get(self, key: tuple[Any, ...]) -> bytes | None:
+    def get(self, key: tuple[Any, ...]) -> RenderedGeoJson | None:
         with self._lock:
             v = self._data.get(key)
             if v is not None:
@@ -184,26 +212,57 @@ class _GeoJsonCache:
         with self._lock:
             self._data.clear()
 
-    def put(self, key: tuple[Any, ...], value: bytes) -> None:
+    def put(self, key: tuple[Any, ...], value: RenderedGeoJson) -> None:
         with self._lock:
             self._data[key] = value
+            self._data.move_to_end(key)
             while len(self._data) > self.size:
                 self._data.popitem(last=False)
+
+    def get_or_render(self, key: tuple[Any, ...], render: Callable[[], bytes]) -> RenderedGeoJson:
+        cached = self.get(key)
+        if cached is not None:
+            return cached
+        with self._lock:
+            gate = self._rendering.setdefault(key, threading.Lock())
+        try:
+            with gate:
+                cached = self.get(key)
+                if cached is not None:
+                    return cached
+                body = render()
+                rendered = RenderedGeoJson(
+                    body, gzip.compress(body, compresslevel=6, mtime=0),
+                    '"' + hashlib.blake2b(body, digest_size=12).hexdigest() + '"',
+                )
+                self.put(key, rendered)
+                return rendered
+        finally:
+            with self._lock:
+                if self._rendering.get(key) is gate:
+                    del self._rendering[key]
 
 
 GEOJSON_CACHE = _GeoJsonCache()
 
 
-def _r(x: float, nd: int = 7) -> float:
-    return round(float(x), nd)
+def _rounded(a: np.ndarray, nd: int) -> list[float]:
+    return np.round(np.asarray(a, dtype=float), nd).tolist()
 
 
-def keyframes_geojson(session: Session, settings: Settings, run: Run, revision: int | None) -> bytes:
-    rev = ready_revision(session, run, revision)
-    key = (run.id, rev.number, settings.files_dir.as_posix(), json.dumps(run.rules, sort_keys=True), run.head_revision)
+def keyframes_geojson(session: Session, settings: Settings, run: Run, revision: int | None) -> RenderedGeoJson:
+    """The keyframes of a revision (default: the latest ready) as GeoJSON, rendered once per
+    (revision, head revision, rules): the same for every user allowed to see the run."""
+    number = run.revision if revision is None else revision
+    key = (run.id, number, settings.files_dir.as_posix(), json.dumps(run.rules, sort_keys=True), run.head_revision)
     cached = GEOJSON_CACHE.get(key)
     if cached is not None:
         return cached
+    rev = ready_revision(session, run, revision)
+    return GEOJSON_CACHE.get_or_render(key, lambda: _render_geojson(session, settings, run, rev))
+
+
+def _render_geojson(session: Session, settings: Settings, run: Run, rev: Revision) -> bytes:
     kfs = repo.keyframe_columns(session, run.id)
     arrays = storage.read_keyframes(store(settings), rev.keyframes_file)
     k = len(kfs)
@@ -212,8 +271,8 @@ def keyframes_geojson(session: Session, settings: Settings, run: Run, revision: 
     edited_idx = [int(m[0]) for m in edit_set.get("moves", [])]
     deleted = set(int(d) for d in edit_set.get("deleted", []))
     flagged = {int(f["index"]): f for f in edit_set.get("flags", [])}
-    adjustable = adjustable_mask(k, rules)
-    locked = locked_mask(k, edited_idx, rules)
+    adjustable = adjustable_mask(k, rules).tolist()
+    locked = locked_mask(k, edited_idx, rules).tolist()
     edited = set(edited_idx)
     images_by_k: dict[int, list[int]] = {}
     for im in repo.images(session, run.id):
@@ -221,31 +280,33 @@ def keyframes_geojson(session: Session, settings: Settings, run: Run, revision: 
             images_by_k.setdefault(im.keyframe, []).append(im.id)
     rep_lon = np.array([r[3] for r in kfs])
     rep_lat = np.array([r[4] for r in kfs])
-    corr_m = correction.horizontal_distance_m(rep_lon, rep_lat, arrays.lon_deg, arrays.lat_deg)
+    corr_m = _rounded(correction.horizontal_distance_m(rep_lon, rep_lat, arrays.lon_deg, arrays.lat_deg), 3)
+    lon, lat = _rounded(arrays.lon_deg, 7), _rounded(arrays.lat_deg, 7)
+    rlon, rlat = _rounded(rep_lon, 7), _rounded(rep_lat, 7)
+    heading = _rounded(arrays.heading_deg, 2)
     features = []
-    for i, (kk, sample, t, lon, lat, _alt) in enumerate(kfs):
+    for i, (kk, sample, t, _lon, _lat, _alt) in enumerate(kfs):
         imgs = images_by_k.get(kk, [])
         features.append({
             "type": "Feature", "id": kk,
-            "geometry": {"type": "Point", "coordinates": [_r(arrays.lon_deg[i]), _r(arrays.lat_deg[i])]},
+            "geometry": {"type": "Point", "coordinates": [lon[i], lat[i]]},
             "properties": {
-                "index": kk, "sample": sample, "t": t, "heading_deg": round(float(arrays.heading_deg[i]), 2),
-                "adjustable": bool(adjustable[i]) and kk not in deleted, "locked": bool(locked[i]),
+                "index": kk, "sample": sample, "t": t, "heading_deg": heading[i],
+                "adjustable": adjustable[i] and kk not in deleted, "locked": locked[i],
                 "edited": kk in edited, "deleted": kk in deleted, "flagged": kk in flagged,
                 "flag_reason": flagged[kk]["reason"] if kk in flagged else None,
-                "has_images": bool(imgs), "images": imgs, "reported": [_r(lon), _r(lat)],
-                "correction_m": round(float(corr_m[i]), 3),
+                "has_images": bool(imgs), "images": imgs, "reported": [rlon[i], rlat[i]],
+                "correction_m": corr_m[i],
             },
         })
     body = {
         "type": "FeatureCollection", "run_id": run.id, "revision": rev.number, "head_revision": run.head_revision,
         "rules": run.rules, "drift": rev.drift, "solver": rev.solver,
-        "line": {"type": "LineString", "coordinates": [[_r(a), _r(b)] for a, b in zip(arrays.line_lon_deg, arrays.line_lat_deg)]},
+        "line": {"type": "LineString", "coordinates": np.stack(
+            [np.round(arrays.line_lon_deg, 7), np.round(arrays.line_lat_deg, 7)], axis=1).tolist()},
         "features": features,
     }
-    data = json.dumps(body, separators=(",", ":")).encode()
-    GEOJSON_CACHE.put(key, data)
-    return data
+    return orjson.dumps(body)
 
 
 def export_stream(session: Session, settings: Settings, run: Run, revision: int | None, fmt: str) -> tuple[Iterator[bytes], str, str]:

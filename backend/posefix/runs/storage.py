@@ -5,15 +5,23 @@ Layout under ``settings.files_dir``::
     runs/<run_id>/original<ext>            the uploaded file, as received
     runs/<run_id>/r<N>-<tag>.parquet       revision N, every sample (interchange columns)
     runs/<run_id>/r<N>-<tag>.npz           revision N, keyframe positions and the display line
+    runs/<run_id>/r<N>-<tag>.solution.npz  revision N, the solved keyframe state (a cache: warm
+                                           start of previews in every API process; optional)
     images/<run_id>/<image_id><ext>        image originals; <image_id>.thumb.jpg thumbnails
     staging/<uuid>/                        uploads being checked (removed whatever happens)
 
 Every file is written to a temporary name in the same directory and renamed into place,
-so a reader never sees half a file.
+so a reader never sees half a file. A revision's files exist for good only once its row is
+committed: files of a revision written by a job that died (or lost the race to another run
+of the same job) are removed by ``sweep_revision_files``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
+import io
+import json
 import os
 import shutil
 import uuid
@@ -21,6 +29,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -199,3 +208,132 @@ def keyframe_arrays(run: PoseRun, index: np.ndarray, max_line_points: int) -> Ke
         lon_deg=run.lon_deg[index], lat_deg=run.lat_deg[index], alt_m=run.alt_m[index],
         heading_deg=heading_deg(run.q_body_to_enu_wxyz[index]), line_lon_deg=line_lon, line_lat_deg=line_lat,
     )
+
+
+# -- solved keyframe state of a revision (a cache shared by every process) ----------------
+
+SOLUTION_FORMAT = 1
+# The engine's result types a solution file may hold (nothing else is ever instantiated).
+_SOLUTION_CLASSES = frozenset({
+    "posefix.engine:Solution", "posefix.core.keyframes:KeyframeSet", "posefix.core.solver:SolverResult",
+    "posefix.core.drift:DriftEstimate", "posefix.core.terms:Terms", "posefix.core.rules:Refusal",
+    "posefix.core.solver:Linearisation",
+})
+
+
+def solution_rel(keyframes_rel: str) -> str:
+    """The solution file beside a revision's keyframes file (``r<N>-<tag>.npz``)."""
+    stem = keyframes_rel[:-4] if keyframes_rel.endswith(".npz") else keyframes_rel
+    return f"{stem}.solution.npz"
+
+
+def _encode(value: Any, arrays: dict[str, np.ndarray]) -> Any:
+    """A JSON tree of ``value`` with its arrays moved to ``arrays`` (stored without pickle)."""
+    if isinstance(value, np.ndarray):
+        for key, stored in arrays.items():  # one copy of an array referenced twice
+            if stored is value:
+                return {"__array__": key}
+        key = f"a{len(arrays)}"
+        arrays[key] = value
+        return {"__array__": key}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        name = f"{type(value).__module__}:{type(value).__qualname__}"
+        if name not in _SOLUTION_CLASSES:
+            raise TypeError(f"{name} is not stored in solution files")
+        return {"__dataclass__": name,
+                "fields": {f.name: _encode(getattr(value, f.name), arrays) for f in dataclasses.fields(value)}}
+    if isinstance(value, tuple):
+        return {"__tuple__": [_encode(v, arrays) for v in value]}
+    if isinstance(value, list):
+        return [_encode(v, arrays) for v in value]
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError("only text keys are stored in solution files")
+        out = {}
+        for k, v in value.items():
+            try:
+                out[k] = _encode(v, arrays)
+            except TypeError:  # a diagnostic of a kind files do not hold: left out
+                continue
+        return {"__dict__": out}
+    if isinstance(value, np.generic):
+        return value.item()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(f"cannot store a {type(value).__name__} in a solution file")
+
+
+def _decode(node: Any, arrays: Any) -> Any:
+    if isinstance(node, list):
+        return [_decode(v, arrays) for v in node]
+    if not isinstance(node, dict):
+        return node
+    if "__array__" in node:
+        return arrays[node["__array__"]]
+    if "__tuple__" in node:
+        return tuple(_decode(v, arrays) for v in node["__tuple__"])
+    if "__dict__" in node:
+        return {k: _decode(v, arrays) for k, v in node["__dict__"].items()}
+    name = node["__dataclass__"]
+    if name not in _SOLUTION_CLASSES:
+        raise TypeError(f"{name} is not stored in solution files")
+    module, _, qualname = name.partition(":")
+    cls = getattr(importlib.import_module(module), qualname)
+    # TypeError when the engine's classes changed since the file was written: a cache miss
+    return cls(**{k: _decode(v, arrays) for k, v in node["fields"].items()})
+
+
+def write_solution(store: FileStore, rel: str, solution: Any, fingerprint: str) -> str:
+    """Store an engine ``Solution`` (arrays in an .npz, the rest as JSON; no pickle), atomically."""
+    arrays: dict[str, np.ndarray] = {}
+    tree = _encode(solution, arrays)
+    meta = json.dumps({"format": SOLUTION_FORMAT, "fingerprint": fingerprint, "solution": tree}).encode()
+    buffer = io.BytesIO()
+    np.savez(buffer, __meta__=np.frombuffer(meta, dtype=np.uint8), **arrays)
+    return store.put_bytes(buffer.getvalue(), rel)
+
+
+def read_solution(store: FileStore, rel: str, fingerprint: str) -> Any | None:
+    """The ``Solution`` stored at ``rel``; None when there is none, or it was written by
+    another engine configuration (``fingerprint``) or version of the engine's classes."""
+    try:
+        with np.load(store.path(rel), allow_pickle=False) as z:
+            meta = json.loads(z["__meta__"].tobytes())
+            if meta.get("format") != SOLUTION_FORMAT or meta.get("fingerprint") != fingerprint:
+                return None
+            arrays = {k: z[k] for k in z.files if k != "__meta__"}
+        return _decode(meta["solution"], arrays)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ImportError):
+        return None
+
+
+# -- files of revisions that were never committed ----------------------------------------
+
+def revision_files(store: FileStore, run_id: int, number: int) -> list[Path]:
+    """Every file of revision ``number`` of a run, temporaries of interrupted writes included."""
+    run_dir = store.path(f"runs/{run_id}")
+    if not run_dir.is_dir():
+        return []
+    prefixes = (f"r{number}-", f".r{number}-")
+    return sorted(p for p in run_dir.iterdir() if p.is_file() and p.name.startswith(prefixes))
+
+
+def sweep_revision_files(store: FileStore, run_id: int, number: int, keep: set[str]) -> list[str]:
+    """Remove the files of revision ``number`` other than ``keep`` (file-store paths of its
+    committed row, whose solution files are kept too); returns the names removed.
+
+    Call it only once the revision's row is committed (or can never be: its job is dead):
+    then every other file of that revision is left over from a run of the job that died or
+    lost the race, and no later run of the job will use it.
+    """
+    kept = {store.path(rel).name for rel in keep} | {store.path(solution_rel(rel)).name for rel in keep if rel.endswith(".npz")}
+    removed = []
+    for path in revision_files(store, run_id, number):
+        if path.name in kept:
+            continue
+        try:
+            path.unlink()
+            removed.append(path.name)
+        except FileNotFoundError:
+            pass
+    return removed

@@ -18,7 +18,7 @@ import uuid
 from posefix.config import Settings
 from posefix.db import Database
 from posefix.jobs import repository as jobs
-from posefix.jobs.registry import JobContext, LeaseLost, PermanentJobError, handler_for, load_handlers
+from posefix.jobs.registry import JobContext, LeaseLost, PermanentJobError, cleanups, handler_for, load_handlers
 
 log = logging.getLogger("posefix.worker")
 
@@ -78,6 +78,7 @@ class Worker:
             self._last_bury = now
             with self.db.transaction() as s:
                 jobs.bury_expired(s)
+            self.clean_up()
         with self.db.transaction() as s:
             job_id = jobs.claim(s, self.worker_id, self.settings.job_lease_s)
         if job_id is None:
@@ -89,6 +90,14 @@ class Worker:
         self._execute(job)
         self.processed += 1
         return True
+
+    def clean_up(self) -> None:
+        """The registered housekeeping steps (files of dead jobs...); a failure is logged only."""
+        for fn in cleanups():
+            try:
+                fn(self.db, self.settings)
+            except Exception:
+                log.exception("cleanup %s failed", getattr(fn, "__name__", fn), extra={"worker_id": self.worker_id})
 
     def _execute(self, job) -> None:  # type: ignore[no-untyped-def]
         extra = {"worker_id": self.worker_id, "job_id": job.id}
