@@ -1,9 +1,10 @@
 """WiFi fingerprints: k-NN and path-loss predictions, access-point fits and RSSI peaks on a simulated survey."""
 
 import numpy as np
+import pytest
 
 from posefix.mapmatch.fingerprints import FingerprintMap, build_fingerprints, fit_access_points
-from posefix.mapmatch.sensors import Walk
+from posefix.mapmatch.sensors import Walk, WalkFormatError, read_walk, wifi_scans
 
 APS = np.array([[5.0, 5.0], [35.0, 5.0], [20.0, 25.0], [5.0, 25.0], [35.0, 25.0]])
 P0 = np.array([-35.0, -38.0, -33.0, -40.0, -36.0])
@@ -76,3 +77,84 @@ def test_build_from_walks_places_scans_on_the_waypoint_line_and_finds_peaks():
     assert np.allclose(fp.peak_xy_m["ap0"], [5.0, 5.0])
     peaks = fp.peaks_in_walk(w)
     assert sorted(int(tp) for tp, _, _ in peaks) == [3000, 33000]
+
+
+def test_scans_drop_stale_entries_and_are_timed_when_measured():
+    # One delivery at 10 000 ms: two fresh entries (seen 9 300 and 9 500) and one the phone
+    # cached from a scan 6 s earlier; a second delivery at 12 000 ms.
+    wifi = [(10000, "a", -50.0, 9300), (10000, "b", -60.0, 9500), (10000, "old", -45.0, 4000),
+            (12000, "a", -52.0, 11400)]
+    z = np.zeros((0, 4))
+    w = Walk(path="sim", acc=z, gyro=z, mag=z, rotvec=z, wifi=wifi, waypoints=np.zeros((0, 3)))
+    scans = wifi_scans(w)
+    assert [t for t, _ in scans] == [9400, 11400]  # median last-seen of the kept entries
+    assert scans[0][1] == {"a": -50.0, "b": -60.0}  # the stale entry is gone
+    assert wifi_scans(w, max_age_ms=None, scan_time="line")[0] == (10000, {"a": -50.0, "b": -60.0, "old": -45.0})
+    # Rows without a last-seen time (3-tuples) are timed by their line.
+    w3 = Walk(path="sim", acc=z, gyro=z, mag=z, rotvec=z, wifi=[(5, "a", -50.0)], waypoints=np.zeros((0, 3)))
+    assert wifi_scans(w3) == [(5, {"a": -50.0})]
+
+
+def test_read_walk_keeps_the_last_seen_time(tmp_path):
+    lines = [f"{1000 + 20 * i}\tTYPE_ACCELEROMETER\t0\t0\t9.8\t3" for i in range(12)]
+    lines += [f"{1000 + 20 * i}\tTYPE_ROTATION_VECTOR\t0\t0\t0\t3" for i in range(12)]
+    lines += ["1300\tTYPE_WIFI\tnet\taa:bb\t-61\t2412\t900", "1300\tTYPE_WIFI\tnet\tcc:dd\t-70\t2412"]
+    p = tmp_path / "w.txt"
+    p.write_text("\n".join(lines) + "\n")
+    w = read_walk(p)
+    assert w.wifi == [(1300, "aa:bb", -61.0, 900), (1300, "cc:dd", -70.0, 1300)]
+    p.write_text("\n".join(lines + ["1300\tTYPE_WIFI\tnet\tee:ff\t-70\t2412\tsoon"]) + "\n")
+    with pytest.raises(WalkFormatError, match=r"w.txt:27: field last_seen_timestamp"):
+        read_walk(p)
+
+
+def test_survey_positions_at_measurement_time_not_delivery():
+    # 1 m/s along x; every scan delivered 1.5 s after it was measured.
+    t = np.arange(0, 30001, 2000)
+    wifi = []
+    for tm in t:
+        q = np.array([[2.0 + tm / 1000.0, 5.0]])
+        for i, v in enumerate(rssi_at(q)[0]):
+            wifi.append((int(tm) + 1500, f"ap{i}", float(v), int(tm)))
+    z = np.zeros((0, 4))
+    w = Walk(path="sim", acc=z, gyro=z, mag=z, rotvec=z, wifi=wifi, waypoints=np.array([[0, 2.0, 5.0], [40000, 42.0, 5.0]]))
+    fp = build_fingerprints([w], calibrate=False)
+    assert np.allclose(fp.p_xy_m[:, 0], 2.0 + t / 1000.0)
+
+
+def survey_walks(rng, noise_db=4.0):
+    """Eight walks along the rows of a 40 × 30 m floor, a scan every metre, noisy RSSI."""
+    walks = []
+    for row, y in enumerate(np.linspace(3.0, 27.0, 8)):
+        t = np.arange(0, 36001, 1000)
+        pos = np.column_stack([2.0 + t / 1000.0, np.full(t.size, y)])
+        r = rssi_at(pos, rng, noise_db)
+        wifi = [(int(tm), f"ap{i}", float(v), int(tm)) for tm, rr in zip(t, r) for i, v in enumerate(rr)]
+        z = np.zeros((0, 4))
+        walks.append(Walk(path=f"row{row}", acc=z, gyro=z, mag=z, rotvec=z, wifi=wifi,
+                          waypoints=np.array([[0, 2.0, y], [36000, 38.0, y]])))
+    return walks
+
+
+def test_covariance_is_calibrated_on_the_survey():
+    rng = np.random.default_rng(3)
+    walks = survey_walks(rng, noise_db=8.0)
+    # σ0 = 0.3 m: a survey point's own uncertainty set too small, so the raw Σ is overconfident.
+    fp_raw = build_fingerprints(walks, calibrate=False, sigma0_m=0.3)
+    fp = build_fingerprints(walks, sigma0_m=0.3)
+    assert fp.cov_scale > 1.5  # the neighbours' spread alone is overconfident here
+    # Fresh scans at random places: the calibrated Σ makes their Mahalanobis distances χ²₂-like.
+    truth = rng.uniform([3.0, 4.0], [37.0, 26.0], size=(200, 2))
+    r = rssi_at(truth, rng, 8.0)
+    m2_raw, m2 = [], []
+    for p, rr in zip(truth, r):
+        scan = {f"ap{i}": float(v) for i, v in enumerate(rr)}
+        for f, out in ((fp_raw, m2_raw), (fp, m2)):
+            mu, cov = f.predict(scan)
+            d = p - mu
+            out.append(d @ np.linalg.solve(cov, d))
+    chi2_median = 2.0 * np.log(2.0)
+    assert np.median(m2_raw) > 1.3 * chi2_median
+    # Held-out walks leave whole rows out, so the survey calibration errs a little wide.
+    assert 0.4 * chi2_median < np.median(m2) < 1.2 * chi2_median
+    assert 0.0 <= fp.outlier_frac < 0.2

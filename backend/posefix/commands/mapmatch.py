@@ -161,7 +161,7 @@ def track(
     fingerprints: Optional[Path] = typer.Option(None, "--fingerprints", help="Fingerprint file (adds f3/f4)."),
     start: Optional[str] = typer.Option(None, "--start", help="Known start 'X,Y' in metres (floor frame); default: unknown (uniform)."),
     heading: str = typer.Option("rotation_vector", "--heading", help="Heading source: rotation_vector or gyro_mag."),
-    wifi_method: str = typer.Option("hybrid", "--wifi-method", help="WiFi position from fingerprints: hybrid, knn or pathloss."),
+    wifi_method: str = typer.Option("knn", "--wifi-method", help="WiFi position from fingerprints: knn (weighted k-NN, default), pathloss or hybrid."),
     estimate: str = typer.Option("mean", "--estimate", help="Rows: 'mean' (smoothed posterior mean) or 'viterbi' (most likely path)."),
 ) -> None:
     """Track a walk: one row per step with the smoothed position and its 1σ error ellipse."""

@@ -48,6 +48,7 @@ __all__ = [
     "heading_errors_from_path",
     "rotate_steps",
     "f_gaussian_position",
+    "f_robust_position",
     "TRANSITION_FEATURES",
     "STATE_FEATURES",
     "FEATURE_NAMES",
@@ -139,3 +140,19 @@ def f_gaussian_position(p_xy_m: np.ndarray, mean_xy_m: np.ndarray, cov_m2: np.nd
     d = np.asarray(p_xy_m, dtype=float) - np.asarray(mean_xy_m, dtype=float)
     inv = np.linalg.inv(np.asarray(cov_m2, dtype=float))
     return -0.5 * np.einsum("vi,ij,vj->v", d, inv, d)
+
+
+def f_robust_position(p_xy_m: np.ndarray, mean_xy_m: np.ndarray, cov_m2: np.ndarray, outlier_frac: float,
+                      cell_m: float) -> np.ndarray:
+    """f3 with outliers: ``log((1 - ε)·c²·N(p; μ, Σ) + ε / V)`` for vertex positions (V, 2).
+
+    The prediction is right (Gaussian, the vertex's probability mass c²·N) with probability
+    1 - ε, or points anywhere (uniform over the V vertices) with probability ε — a WiFi scan
+    that matches the wrong wing. ε = 0 gives f_gaussian_position up to a constant.
+    """
+    p = np.asarray(p_xy_m, dtype=float)
+    cov = np.asarray(cov_m2, dtype=float)
+    g = f_gaussian_position(p, mean_xy_m, cov) + np.log(cell_m**2 / (2.0 * np.pi * np.sqrt(np.linalg.det(cov))))
+    if outlier_frac <= 0.0:
+        return g
+    return np.logaddexp(np.log1p(-outlier_frac) + g, np.log(outlier_frac / p.shape[0]))

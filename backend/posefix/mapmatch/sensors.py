@@ -44,6 +44,7 @@ __all__ = [
 ]
 
 GRAVITY_MPS2 = 9.80665
+WIFI_MAX_AGE_MS = 3000.0  # one Android scan cycle (2-4 s): older entries are cached from earlier scans
 
 
 class WalkFormatError(ValueError):
@@ -59,7 +60,9 @@ class Walk:
     """One parsed walk. Times are unix milliseconds, as in the file.
 
     Sensor arrays are ``(n, 1 + m)``: column 0 the time (ms), then the m values.
-    ``wifi`` rows are ``(t_ms, bssid, rssi_dbm)`` grouped into scans by ``t_ms``.
+    ``wifi`` rows are ``(t_ms, bssid, rssi_dbm, last_seen_ms)``: ``t_ms`` the line's time (when
+    the scan was delivered; one scan's lines share it), ``last_seen_ms`` the access point's own
+    last-seen time (``t_ms`` when the file has none). :func:`wifi_scans` groups them into scans.
     ``waypoints`` is ``(w, 3)`` = ``t_ms, x_m, y_m``: ground truth, never used for tracking.
     """
 
@@ -68,7 +71,7 @@ class Walk:
     gyro: np.ndarray
     mag: np.ndarray
     rotvec: np.ndarray
-    wifi: list[tuple[int, str, float]]
+    wifi: list[tuple[int, str, float, int]]
     waypoints: np.ndarray
     header: dict[str, str] = field(default_factory=dict)
 
@@ -128,7 +131,7 @@ def read_walk(path: str | Path) -> Walk:
     """Parse a competition path file. Raises :class:`WalkFormatError` on bad lines."""
     path = str(path)
     rows: dict[str, list[list[float]]] = {k: [] for k, _ in _SENSORS.values()}
-    wifi: list[tuple[int, str, float]] = []
+    wifi: list[tuple[int, str, float, int]] = []
     waypoints: list[list[float]] = []
     header: dict[str, str] = {}
     try:
@@ -167,9 +170,16 @@ def read_walk(path: str | Path) -> Walk:
                 if len(parts) < 5:
                     raise WalkFormatError(path, lineno, "TYPE_WIFI", "expected ssid, bssid, rssi")
                 try:
-                    wifi.append((t_ms, parts[3], float(parts[4])))
+                    rssi = float(parts[4])
                 except ValueError:
                     raise WalkFormatError(path, lineno, "rssi", f"not a number: {parts[4]!r}")
+                seen_ms = t_ms
+                if len(parts) >= 7 and parts[6].strip():
+                    try:
+                        seen_ms = int(parts[6])
+                    except ValueError:
+                        raise WalkFormatError(path, lineno, "last_seen_timestamp", f"not an integer: {parts[6]!r}")
+                wifi.append((t_ms, parts[3], rssi, seen_ms))
             elif kind == "TYPE_WAYPOINT":
                 try:
                     waypoints.append([t_ms, float(parts[2]), float(parts[3])])
@@ -334,9 +344,38 @@ def steps_from_walk(walk: Walk, heading: str = "rotation_vector") -> Steps:
     return Steps(t_ms=t_ms, freq_hz=freq, heading_rad=np.asarray(th_steps, dtype=float))
 
 
-def wifi_scans(walk: Walk) -> list[tuple[int, dict[str, float]]]:
-    """WiFi rows grouped into scans: list of ``(t_ms, {bssid: rssi_dbm})`` in time order."""
-    scans: dict[int, dict[str, float]] = {}
-    for t_ms, bssid, rssi in walk.wifi:
-        scans.setdefault(t_ms, {})[bssid] = rssi
-    return sorted(scans.items())
+def wifi_scans(walk: Walk, max_age_ms: float | None = WIFI_MAX_AGE_MS,
+               scan_time: str = "median") -> list[tuple[int, dict[str, float]]]:
+    """WiFi rows grouped into scans: list of ``(t_ms, {bssid: rssi_dbm})`` in time order.
+
+    One scan = the lines delivered together (same line time). Android reports, with each
+    scan, access points it heard in *earlier* scans (cached, with their old last-seen
+    time): an entry whose last-seen time is more than ``max_age_ms`` older than the newest
+    entry of its scan is dropped (None keeps all). The scan's ``t_ms`` is when it was
+    measured, not delivered: the ``"median"`` (default) or ``"newest"`` last-seen time of
+    the kept entries, or ``"line"`` for the delivery time. (The delivery comes 0.2-0.7 s
+    after the newest entry on the competition files, and one scan's fresh entries spread
+    over 1-3 s as the radio sweeps the channels: 1-3 m of walking.)
+    """
+    if scan_time not in ("median", "newest", "line"):
+        raise ValueError(f"scan_time must be 'median', 'newest' or 'line', got {scan_time!r}")
+    groups: dict[int, list[tuple]] = {}
+    for row in walk.wifi:
+        groups.setdefault(int(row[0]), []).append(row)
+    out = []
+    for t_line, rows in groups.items():
+        seen = np.array([r[3] if len(r) > 3 else r[0] for r in rows], dtype=float)
+        keep = np.ones(seen.size, bool) if max_age_ms is None else seen >= seen.max() - max_age_ms
+        scan: dict[str, float] = {}
+        for r, k in zip(rows, keep):
+            if k:
+                scan[r[1]] = float(r[2])
+        if scan_time == "line":
+            t = t_line
+        elif scan_time == "newest":
+            t = int(seen[keep].max())
+        else:
+            t = int(np.median(seen[keep]))
+        out.append((t, scan))
+    out.sort(key=lambda x: x[0])
+    return out

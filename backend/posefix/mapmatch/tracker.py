@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from posefix.mapmatch.features import FeatureSigmas, f_gaussian_position, f_step
+from posefix.mapmatch.features import FeatureSigmas, f_gaussian_position, f_robust_position, f_step
 from posefix.mapmatch.viterbi import GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
 
 __all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "smooth", "start_log_prior"]
@@ -38,6 +38,15 @@ def start_log_prior(p_xy_m: np.ndarray, start_xy_m: tuple[float, float] | None,
     lp = -0.5 * d2 / sigma_m**2
     cut = max(9.0 * sigma_m**2, float(np.min(d2)) + 1e-9)
     return np.where(d2 <= cut, lp, -np.inf)
+
+
+def wifi_score(p_xy_m: np.ndarray, wifi: tuple, cell_m: float) -> np.ndarray:
+    """f3 (V,) for a WiFi observation ``(mean (2,), cov (2, 2))`` or ``(mean, cov, outlier_frac)``:
+    the Gaussian, or its robust form when an outlier fraction ε > 0 is given
+    (:func:`posefix.mapmatch.features.f_robust_position`)."""
+    if len(wifi) > 2 and wifi[2] > 0.0:
+        return f_robust_position(p_xy_m, wifi[0], wifi[1], float(wifi[2]), cell_m)
+    return f_gaussian_position(p_xy_m, wifi[0], wifi[1])
 
 
 @dataclass(frozen=True)
@@ -72,6 +81,9 @@ class TrackResult:
 class Tracker:
     """Online CRF tracker over a :class:`posefix.mapmatch.model.Model`.
 
+    ``start_wifi``: with ``start_xy_m`` None, an optional WiFi prediction ``(mean, cov[, ε])``
+    of a scan taken before the first step: the start prior instead of the uniform one.
+
     ``step(step_xy_m, t_ms, wifi=None, peak=None)``: one detected step as a floor-frame
     vector (m, heading bias already applied); ``wifi`` an optional ``(mean (2,), cov (2,2))``
     position predicted by the fingerprint map, ``peak`` an optional ``(xy (2,), sigma_m)``
@@ -79,7 +91,7 @@ class Tracker:
     """
 
     def __init__(self, model, start_xy_m: tuple[float, float] | None = None, t0_ms: int = 0,
-                 start_sigma_m: float = 1.0, collapse_sigma_m: float = 0.0):
+                 start_sigma_m: float = 1.0, collapse_sigma_m: float = 0.0, start_wifi: tuple | None = None):
         self.model = model
         g = model.graph
         self.graph = g
@@ -88,7 +100,12 @@ class Tracker:
         self.w = model.weights
         self.sig: FeatureSigmas = model.sigmas
         self.collapse_sigma_m = collapse_sigma_m
-        self.filter = ViterbiFilter(g, start_log_prior(self.p_xy_m, start_xy_m, start_sigma_m), beam=model.beam)
+        prior = start_log_prior(self.p_xy_m, start_xy_m, start_sigma_m)
+        if start_xy_m is None and start_wifi is not None:
+            # Unknown start, but a WiFi scan before the first step: its prediction is the prior
+            # (unweighted: a prior is a distribution, not a feature).
+            prior = wifi_score(self.p_xy_m, start_wifi, g.cell_m)
+        self.filter = ViterbiFilter(g, prior, beam=model.beam)
         c = g.cell_m
         self._c = c
         self._cum = np.zeros(2)  # dead-reckoning sum (f1)
@@ -142,7 +159,7 @@ class Tracker:
         """(V,) weighted state scores from a WiFi prediction and/or an RSSI peak, or None."""
         out = None
         if wifi is not None and self.w["f3"] != 0.0:
-            out = self.w["f3"] * f_gaussian_position(self.p_xy_m, wifi[0], wifi[1])
+            out = self.w["f3"] * wifi_score(self.p_xy_m, wifi, self._c)
         if peak is not None and self.w["f4"] != 0.0:
             f4 = self.w["f4"] * f_gaussian_position(self.p_xy_m, peak[0], np.eye(2) * peak[1] ** 2)
             out = f4 if out is None else out + f4
@@ -206,12 +223,17 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     t0 = int(walk.acc[0, 0])
     wifi_at: dict[int, tuple] = {}
     peak_at: dict[int, tuple] = {}
+    start_wifi = None
     if fingerprints is not None and len(steps):
+        eps = fingerprints.outlier_frac if getattr(fingerprints, "robust", False) else 0.0
         for t_ms, mean, cov in fingerprints.predict_walk(walk, model.graph.p_xy_m):
-            wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (mean, cov)
+            if start_xy_m is None and start_wifi is None and not wifi_at and t_ms <= steps.t_ms[0]:
+                start_wifi = (mean, cov, eps)  # before the first step: the start prior
+                continue
+            wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (mean, cov, eps)
         for t_ms, xy, sig in fingerprints.peaks_in_walk(walk):
             peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (xy, sig)
-    tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0)
+    tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0, start_wifi=start_wifi)
     pts = [gaussian_summary(tr.p_xy_m, tr.filter.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))]
     online = [tr.p_xy_m[int(np.argmax(tr.filter.delta))]]
     tic = time.process_time()  # CPU time of this process: "one core", whatever else runs
