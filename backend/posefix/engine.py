@@ -157,6 +157,7 @@ class Problem:
         self._image_mask = image_mask
         self.keyframe_index = self.keyframes_for(np.zeros(0, dtype=np.int64))
         self.keyframe_index.flags.writeable = False  # shared by every solve on the default keyframes
+        self._default_key = self.keyframe_index.tobytes()
         self._local_to_anchor: dict[bytes, np.ndarray] = {}
         self._static: dict[bytes, object] = {}
 
@@ -186,9 +187,16 @@ class Problem:
             return base
         return np.union1d(base, missing)
 
+    def _rows_key(self, rows: np.ndarray) -> bytes:
+        """Cache key of a set of rows: their bytes.  The default keyframes' is made once: a bytes
+        object keeps its hash, and hashing 30 kB on every look-up of every solve adds up."""
+        if rows is self.keyframe_index:
+            return self._default_key
+        return np.asarray(rows).tobytes()
+
     def local_to_anchor(self, rows: np.ndarray) -> np.ndarray:
         """(m,4) quaternions rotating ENU at each row's position into the anchored ENU frame."""
-        key = np.asarray(rows).tobytes()
+        key = self._rows_key(rows)
         if key not in self._local_to_anchor:
             R = geodesy.rotation_local_enu_to_origin_enu(self.run.lat_deg[rows], self.run.lon_deg[rows], self.origin)
             self._local_to_anchor[key] = rot.matrix_to_quat(R)
@@ -196,7 +204,7 @@ class Problem:
 
     def anchored_quat(self, rows: np.ndarray) -> np.ndarray:
         """Reported orientations of rows, body -> anchored ENU, (m,4) (cached per row set: read only)."""
-        key = b"q" + np.asarray(rows).tobytes()
+        key = ("q", self._rows_key(rows))
         q = self._local_to_anchor.get(key)
         if q is None:
             q = rot.quat_multiply(self.local_to_anchor(rows), self._q_local[rows])
@@ -211,7 +219,7 @@ class Problem:
 
     def _static_terms(self, rows: np.ndarray) -> T.Terms:
         """Edit-independent parts of the terms on these keyframe rows (cached)."""
-        key = rows.tobytes()
+        key = self._rows_key(rows)
         cached = self._static.get(key)
         if cached is not None:
             return cached
@@ -239,7 +247,7 @@ class Problem:
 
     def _gnss_steps(self, rows: np.ndarray, t_s: np.ndarray, p_rep: np.ndarray, g: np.ndarray) -> GnssSteps:
         """GNSS steps against the pose on these keyframes (cached: they depend on the run only)."""
-        key = b"steps" + rows.tobytes()
+        key = ("steps", self._rows_key(rows))
         if key not in self._static:
             self._static[key] = gnss_steps((g - p_rep)[:, :2], window=step_window(t_s))
         return self._static[key]
@@ -247,7 +255,7 @@ class Problem:
     def _location_measurements(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Location measurements on these keyframe rows (k,3), which have a fix (k,), and the
         measurements with NaN rows where there is none (cached per row set: read only)."""
-        key = b"loc" + rows.tobytes()
+        key = ("loc", self._rows_key(rows))
         hit = self._static.get(key)
         if hit is None:
             g = self.p_enu_m[rows] if self.g_enu_m is None else self.g_enu_m[rows]
@@ -260,7 +268,7 @@ class Problem:
 
     def _reported_unit_quat(self, rows: np.ndarray) -> np.ndarray:
         """Reported orientations of these rows as the solver's unit quaternions (w >= 0), cached."""
-        key = b"qrep" + rows.tobytes()
+        key = ("qrep", self._rows_key(rows))
         q = self._static.get(key)
         if q is None:
             q = self._static[key] = rot.normalize_quat(self.anchored_quat(rows))
@@ -296,7 +304,7 @@ class Problem:
         deleted[np.asarray(deleted_kf, dtype=np.int64)] = True
         remove = cfg.rules.deleted == "remove"
         active = ~deleted if remove else np.ones(k, dtype=bool)
-        act_rows = index[active]
+        act_rows = index if active.all() else index[active]  # the same array: cached data keyed on it
         new_number = np.cumsum(active) - 1  # keyframe number -> active number
         static = self._static_terms(act_rows)
         t_act = self.run.t_s[act_rows]
