@@ -233,3 +233,30 @@ def test_a_local_solve_of_one_more_edit_lands_near_the_full_solve():
 
     assert abs(T.cost(full.terms, local.x) - local.solver.cost) <= 1e-6 * local.solver.cost
     assert full.solver.cost * (1 - 1e-9) <= local.solver.cost <= full.solver.cost * (1 + 1e-3)
+
+
+def test_one_more_edit_reuses_the_full_solves_linearisation_and_lands_where_a_fresh_one_does():
+    sim = simulate(duration_s=999.0, rate_hz=1.0, edit_every_s=100.0, seed=5, regime="mixed")
+    moves = [Move(e.t_s, e.lat_deg, e.lon_deg, None) for e in sim.edits]
+    new = moves.pop(4)
+    problem = prepare(sim.run)
+    prev = problem.solve(EditSet(moves=moves))
+    assert prev.linearisation is not None and prev.linearisation.matches(prev.terms)
+    edits = EditSet(moves=moves + [new])
+    local = problem.solve(edits, warm_start=prev, local=True)
+    fresh = problem.solve(edits, warm_start=dataclasses.replace(prev, linearisation=None), local=True)
+    assert "window" in local.solver.method and local.solver.extra["window"] == fresh.solver.extra["window"]
+    assert np.max(np.abs(local.keyframes.p_enu_m - fresh.keyframes.p_enu_m)) < 1e-6
+    for name, cost in fresh.solver.cost_after.items():
+        assert local.solver.cost_after[name] == pytest.approx(cost, rel=1e-9)
+        assert local.solver.cost_before[name] == pytest.approx(fresh.solver.cost_before[name], rel=1e-9)
+    assert local.linearisation is prev.linearisation  # kept for the next frame of a drag
+    # the drag goes on from the local answer (start away from the linearisation point)
+    lat, lon, _ = geodesy.enu_to_geodetic(problem.to_enu(new.lon_deg, new.lat_deg, 0.0) + [3.0, -2.0, 0.0],
+                                          problem.origin)
+    dragged = EditSet(moves=moves + [Move(new.t_s, float(lat[0]), float(lon[0]), None)])
+    nxt = problem.solve(dragged, warm_start=local, local=True)
+    nxt_fresh = problem.solve(dragged, warm_start=dataclasses.replace(local, linearisation=None), local=True)
+    assert "window" in nxt.solver.method
+    assert np.max(np.abs(nxt.keyframes.p_enu_m - nxt_fresh.keyframes.p_enu_m)) < 1e-3
+    assert nxt.solver.cost == pytest.approx(nxt_fresh.solver.cost, rel=1e-6)
