@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from posefix.mapmatch.osm import OsmWay, local_georef, raster_from_ways, read_osm_ways
-from posefix.mapmatch.suggest import heading_from_quaternion_wxyz, suggest_for_run
+from posefix.mapmatch.suggest import drivable_area, drivable_cache_info, heading_from_quaternion_wxyz, suggest_for_run
 
 REPO = Path(__file__).resolve().parents[2]
 PBF = Path(os.environ.get("POSEFIX_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm" / "helsinki.osm.pbf"
@@ -51,3 +51,26 @@ def test_suggestions_pull_a_drifted_drive_onto_the_street():
     assert err.mean() < 4.0 < 9.0
     assert sug.off_road.mean() > 0.5  # 9 m off a 6.5 m street is mostly off the road
     assert np.allclose(sug.moved_m, np.linalg.norm(matched - reported, axis=1), atol=0.01)
+
+
+def test_drivable_area_is_cached_per_extract_content_box_and_cell(tmp_path):
+    if not PBF.is_file():
+        pytest.fail(f"shared data missing at {PBF}: set POSEFIX_SHARED_DATA")
+    drivable_cache_info(clear=True)
+    box = (24.940, 60.166, 24.946, 60.170)
+    r1, g1 = drivable_area(PBF, box, cell_m=4.0)
+    # A box moved by a few metres (keyframes moved by an edit) snaps to the same entry.
+    r2, g2 = drivable_area(PBF, (box[0] + 1e-5, box[1], box[2], box[3] - 1e-5), cell_m=4.0)
+    assert g2 is g1 and r2 is r1
+    assert drivable_cache_info() == {"hits": 1, "misses": 1, "size": 1}
+    # Another cell size is another graph.
+    assert drivable_area(PBF, box, cell_m=5.0)[1] is not g1
+    # The same content under another name hits; changed content misses.
+    copy = tmp_path / "copy.osm.pbf"
+    copy.write_bytes(PBF.read_bytes())
+    assert drivable_area(copy, box, cell_m=4.0)[1] is g1
+    copy.write_bytes(PBF.read_bytes()[:-1] + b"\0")
+    os.utime(copy, ns=(1, 1))  # a different size/mtime key, so the hash is recomputed
+    with pytest.raises(ValueError, match="copy.osm.pbf"):
+        drivable_area(copy, box, cell_m=4.0)
+    assert drivable_cache_info(clear=True)["hits"] == 2

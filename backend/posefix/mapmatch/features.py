@@ -137,9 +137,12 @@ def rotate_steps(steps_xy_m: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
 
 def f_gaussian_position(p_xy_m: np.ndarray, mean_xy_m: np.ndarray, cov_m2: np.ndarray) -> np.ndarray:
     """f3/f4: ``-½ (p - μ)ᵀ Σ⁻¹ (p - μ)`` for vertex positions (V, 2); μ (2,), Σ (2, 2) m²."""
-    d = np.asarray(p_xy_m, dtype=float) - np.asarray(mean_xy_m, dtype=float)
+    p = np.asarray(p_xy_m, dtype=float)
+    mu = np.asarray(mean_xy_m, dtype=float)
     inv = np.linalg.inv(np.asarray(cov_m2, dtype=float))
-    return -0.5 * np.einsum("vi,ij,vj->v", d, inv, d)
+    dx, dy = p[:, 0] - mu[0], p[:, 1] - mu[1]
+    # The 2×2 quadratic form written out: a generic einsum is ~5x slower on (V, 2).
+    return -0.5 * (inv[0, 0] * dx * dx + (inv[0, 1] + inv[1, 0]) * dx * dy + inv[1, 1] * dy * dy)
 
 
 def f_robust_position(p_xy_m: np.ndarray, mean_xy_m: np.ndarray, cov_m2: np.ndarray, outlier_frac: float,

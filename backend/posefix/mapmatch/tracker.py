@@ -51,11 +51,11 @@ def wifi_score(p_xy_m: np.ndarray, wifi: tuple, cell_m: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class TrackPoint:
-    """One step's output: filtered (online) position and its Gaussian summary."""
+    """One step's output: filtered (online) position and its Gaussian summary (None when not asked)."""
 
     t_ms: int
     vertex: int
-    summary: GaussianSummary
+    summary: GaussianSummary | None
 
 
 @dataclass(frozen=True)
@@ -165,7 +165,9 @@ class Tracker:
             out = f4 if out is None else out + f4
         return out
 
-    def step(self, step_xy_m: np.ndarray, t_ms: int, wifi=None, peak=None) -> TrackPoint:
+    def step(self, step_xy_m: np.ndarray, t_ms: int, wifi=None, peak=None, summarise: bool = True) -> TrackPoint:
+        """One step; ``summarise=False`` skips the column's Gaussian summary (``summary`` None,
+        ``vertex`` the best δ) for a caller that reads only some steps (suggestions' sub-steps)."""
         trans, _, _ = self.transition_scores(step_xy_m)
         state = self.state_scores(wifi, peak)
         self.filter.step(trans, state)
@@ -174,6 +176,8 @@ class Tracker:
         self._steps.append(np.asarray(step_xy_m, dtype=float))
         self._cum_hist.append(self._cum_hist[-1] + self._steps[-1])
         self.t_ms.append(int(t_ms))
+        if not summarise and self.collapse_sigma_m <= 0:
+            return TrackPoint(t_ms=int(t_ms), vertex=int(np.argmax(self.filter.delta)), summary=None)
         col = self.filter.column()
         summ = gaussian_summary(self.p_xy_m, col, min_sigma_m=self._c / np.sqrt(12.0))
         if self.collapse_sigma_m > 0 and summ.sigma_major_m < self.collapse_sigma_m:

@@ -2,9 +2,12 @@
 
 The keyframes of a ready revision (their corrected positions, and the heading stored with
 them) are matched by :func:`posefix.mapmatch.suggest_for_run` in a worker job
-(``run.suggestions``): 1.6 s for a 90 s drive but 12 s for the demo's 10 min drive (601
-keyframes; half of it building the drivable raster), too slow for a request. A finished
-job for the same run, revision and cell size is reused.
+(``run.suggestions``): the demo's 10 min drive (601 keyframes) took 4-6 s a call (12 s on a
+busy machine), half of it reading the extract and building the drivable raster and graph.
+Those are now cached in the worker's memory (:func:`posefix.mapmatch.suggest.drivable_area`,
+keyed by the extract's hash and the snapped box), so a repeated suggestion (a new revision,
+another operator) takes about 1 s; the first one about 3.5 s. A finished job for the same
+run, revision and cell size is reused.
 An accepted suggestion is submitted through the normal edits path as a move of kind
 ``suggestion``; see docs/maps-api.md for how it is weighted.
 """
