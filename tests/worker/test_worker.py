@@ -215,6 +215,110 @@ class TestProcesses:
             assert s.scalar(select(func.count()).select_from(Revision).where(Revision.run_id == rid, Revision.number == 1)) == 1
 
 
+def revision_rows(app, rid) -> list[Revision]:
+    with app.state.db.transaction(write=False) as s:
+        rows = list(s.scalars(select(Revision).where(Revision.run_id == rid).order_by(Revision.number)))
+        for r in rows:
+            s.expunge(r)
+        return rows
+
+
+def stray_files(app, settings, rid) -> list[str]:
+    """Files in the run's folder that no committed revision names (besides the upload)."""
+    named = {"original.csv"}
+    for rev in revision_rows(app, rid):
+        named |= {Path(rev.samples_file).name, Path(rev.keyframes_file).name,
+                  Path(storage.solution_rel(rev.keyframes_file)).name}
+    return sorted(p.name for p in (settings.files_dir / "runs" / str(rid)).iterdir() if p.name not in named)
+
+
+def kill_while_writing_revision(app, settings, rid: int, number: int, env: dict[str, str]) -> list[str]:
+    """Start a worker and SIGKILL it once it has begun writing the files of revision
+    ``number`` (before their row is committed); returns the files it left behind.
+
+    The worker is stepped with SIGSTOP/SIGCONT and the folder looked at while it is stopped,
+    so the kill lands inside the few milliseconds of writing even on a busy machine.
+    """
+    fs = storage.FileStore(settings.files_dir)
+    worker = subprocess.Popen([POSEFIX, "worker"], env=env, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 180
+        while True:
+            os.kill(worker.pid, signal.SIGSTOP)
+            left = storage.revision_files(fs, rid, number)
+            if left:
+                break
+            os.kill(worker.pid, signal.SIGCONT)
+            assert worker.poll() is None and time.monotonic() < deadline, "the worker never wrote the revision"
+        worker.send_signal(signal.SIGKILL)
+        worker.wait(timeout=30)
+    finally:
+        if worker.poll() is None:
+            worker.kill()
+            worker.wait(timeout=30)
+    assert [r.number for r in revision_rows(app, rid)] == list(range(number)), "killed after the commit"
+    return [p.name for p in storage.revision_files(fs, rid, number)]
+
+
+@pytest.mark.slow
+class TestKilledWhileWriting:
+    """A worker killed between writing a revision's files and committing its row."""
+
+    def submit(self, client, users, n=50_000):
+        rid = upload(client, users["admin"], drive_csv(n, hz=100.0)).json()["id"]
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [7]}, headers=users["admin"])
+        assert r.status_code == 202, r.text
+        return rid, r.json()["job_id"]
+
+    def test_rerun_writes_revision_once_and_removes_the_orphans(self, app, settings, client, users):
+        rid, jid = self.submit(client, users)
+        env = worker_env(settings, POSEFIX_JOB_LEASE_S=2, POSEFIX_JOB_HEARTBEAT_S=0.5)
+        orphans = kill_while_writing_revision(app, settings, rid, 1, env)
+        assert orphans and stray_files(app, settings, rid) == sorted(orphans)  # the kill did leave files
+        killed = job(app, jid)
+        assert killed.status == "running" and killed.attempts == 1
+        second = subprocess.Popen([POSEFIX, "worker"], env=env, stderr=subprocess.DEVNULL)
+        try:
+            deadline = time.monotonic() + 180
+            while job(app, jid).status not in ("succeeded", "dead"):
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+        finally:
+            second.send_signal(signal.SIGTERM)
+            second.wait(timeout=60)
+        done = job(app, jid)
+        assert done.status == "succeeded" and done.attempts == 2 and done.result["already_written"] is False
+        revs = revision_rows(app, rid)
+        assert [r.number for r in revs] == [0, 1]
+        assert stray_files(app, settings, rid) == []  # no orphan, no half-written temporary
+        assert done.result["removed_files"] == len(orphans)
+        assert (settings.files_dir / storage.solution_rel(revs[1].keyframes_file)).is_file()
+        with app.state.db.transaction(write=False) as s:
+            from posefix.runs.models import RunEvent
+
+            ready = s.scalar(select(func.count()).select_from(RunEvent).where(
+                RunEvent.run_id == rid, RunEvent.action == "revision_ready"))
+        assert ready == 1
+
+    def test_dead_job_files_are_removed_by_the_cleanup(self, app, settings, client, users):
+        rid, jid = self.submit(client, users)
+        with app.state.db.transaction() as s:  # this attempt is its last
+            s.execute(update(Job).where(Job.id == jid).values(max_attempts=1))
+        env = worker_env(settings, POSEFIX_JOB_LEASE_S=1, POSEFIX_JOB_HEARTBEAT_S=0.25)
+        orphans = kill_while_writing_revision(app, settings, rid, 1, env)
+        assert orphans
+        deadline = time.monotonic() + 30
+        while job(app, jid).lease_expires_at > dt.datetime.now(dt.UTC):
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        Worker(app.state.db, app.state.settings, name="janitor").run_once()  # buries the job, then cleans up
+        dead = job(app, jid)
+        assert dead.status == "dead" and dead.result == {"removed_files": sorted(orphans)}
+        assert stray_files(app, settings, rid) == [] and [r.number for r in revision_rows(app, rid)] == [0]
+        Worker(app.state.db, app.state.settings, name="janitor-2").clean_up()  # once per job
+        assert job(app, jid).result == {"removed_files": sorted(orphans)}
+
+
 class TestIdempotentRevision:
     def test_job_run_twice_writes_revision_once(self, app, client, users, settings):
         from posefix.edits.tasks import compute_revision
