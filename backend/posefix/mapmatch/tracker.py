@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 
 from posefix.mapmatch.features import FeatureSigmas, f_gaussian_position, f_robust_position, f_step
-from posefix.mapmatch.viterbi import GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
+from posefix.mapmatch.viterbi import ForwardFilter, GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
 
 __all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "smooth", "start_log_prior"]
 
@@ -91,7 +91,8 @@ class Tracker:
     """
 
     def __init__(self, model, start_xy_m: tuple[float, float] | None = None, t0_ms: int = 0,
-                 start_sigma_m: float = 1.0, collapse_sigma_m: float = 0.0, start_wifi: tuple | None = None):
+                 start_sigma_m: float = 1.0, collapse_sigma_m: float = 0.0, start_wifi: tuple | None = None,
+                 filtered: bool = True):
         self.model = model
         g = model.graph
         self.graph = g
@@ -106,6 +107,7 @@ class Tracker:
             # (unweighted: a prior is a distribution, not a feature).
             prior = wifi_score(self.p_xy_m, start_wifi, g.cell_m)
         self.filter = ViterbiFilter(g, prior, beam=model.beam)
+        self.forward = ForwardFilter(g, prior, beam=model.beam) if filtered else None
         c = g.cell_m
         self._c = c
         self._cum = np.zeros(2)  # dead-reckoning sum (f1)
@@ -176,14 +178,23 @@ class Tracker:
         self._steps.append(np.asarray(step_xy_m, dtype=float))
         self._cum_hist.append(self._cum_hist[-1] + self._steps[-1])
         self.t_ms.append(int(t_ms))
+        if self.forward is not None:
+            self.forward.step(trans, state)
         if not summarise and self.collapse_sigma_m <= 0:
             return TrackPoint(t_ms=int(t_ms), vertex=int(np.argmax(self.filter.delta)), summary=None)
-        col = self.filter.column()
+        col = self.column()
         summ = gaussian_summary(self.p_xy_m, col, min_sigma_m=self._c / np.sqrt(12.0))
         if self.collapse_sigma_m > 0 and summ.sigma_major_m < self.collapse_sigma_m:
             g = f_gaussian_position(self.p_xy_m, summ.mean_xy_m, summ.cov_m2)
             self.filter.delta = np.where(np.isfinite(self.filter.delta) & (g > -4.5), g, -np.inf)
-        return TrackPoint(t_ms=int(t_ms), vertex=int(np.argmax(col)), summary=summ)
+            if self.forward is not None:
+                self.forward.alpha = np.where(np.isfinite(self.forward.alpha) & (g > -4.5), g, -np.inf)
+        return TrackPoint(t_ms=int(t_ms), vertex=int(np.argmax(self.filter.delta)), summary=summ)
+
+    def column(self) -> np.ndarray:
+        """The live distribution (V,) log p: the forward filter's marginal p(y_t | steps so far),
+        or the Viterbi max-product column when the tracker was made with ``filtered=False``."""
+        return self.forward.column() if self.forward is not None else self.filter.column()
 
     def best_path(self) -> np.ndarray:
         """Offline answer so far: the most likely vertex sequence y_0..y_t."""
@@ -238,13 +249,13 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
         for t_ms, xy, sig in fingerprints.peaks_in_walk(walk):
             peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (xy, sig)
     tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0, start_wifi=start_wifi)
-    pts = [gaussian_summary(tr.p_xy_m, tr.filter.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))]
-    online = [tr.p_xy_m[int(np.argmax(tr.filter.delta))]]
+    pts = [gaussian_summary(tr.p_xy_m, tr.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))]
+    online = [pts[0].mean_xy_m]
     tic = time.process_time()  # CPU time of this process: "one core", whatever else runs
     for i in range(len(steps)):
         tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi_at.get(i), peak=peak_at.get(i))
         pts.append(tp.summary)
-        online.append(tr.p_xy_m[tp.vertex])
+        online.append(tp.summary.mean_xy_m)
         if on_step is not None:
             on_step(i + 1, len(steps))
     path = tr.best_path()

@@ -31,6 +31,7 @@ __all__ = [
     "gaussian_summary",
     "viterbi",
     "ViterbiFilter",
+    "ForwardFilter",
     "forward_backward",
     "ForwardBackward",
 ]
@@ -174,6 +175,42 @@ class ViterbiFilter:
             v = u
             out[n - 1 - i] = v
         return out
+
+
+class ForwardFilter:
+    """Online forward (sum-product) filter: log α_t (V,), the filtered marginal
+    p(y_t | x_1..t) up to a constant, with the same transitions, states and beam as
+    :class:`ViterbiFilter`. The live position is its mean (the minimum mean-squared-error
+    estimate given only the past, the online counterpart of the smoothed mean), not the
+    max-product column, whose mass sits on the best path's neighbours only.
+    """
+
+    def __init__(self, graph: GridGraph, log_prior: np.ndarray, beam: float | None = DEFAULT_BEAM):
+        if log_prior.shape != (graph.n_vertices,):
+            raise ValueError(f"log_prior must have shape ({graph.n_vertices},), got {log_prior.shape}")
+        self.graph = graph
+        self.beam = beam
+        self.alpha = _prune(np.asarray(log_prior, dtype=float), beam)
+
+    def step(self, trans_k: np.ndarray, state_v: np.ndarray | None = None) -> None:
+        g = self.graph
+        cand = _candidates(g, np.nonzero(np.isfinite(self.alpha))[0])
+        m = _ext(self.alpha)[g.pred[cand]] + trans_k[None, :]
+        with np.errstate(invalid="ignore"):
+            a = logsumexp(m, axis=1)
+        if state_v is not None:
+            a = a + state_v[cand]
+        row = np.full(g.n_vertices, NEG_INF)
+        row[cand] = a
+        if not np.any(np.isfinite(row)):
+            return  # every path hit a wall: keep the belief (as ViterbiFilter does)
+        top = float(np.max(row))
+        self.alpha = _prune(row - top, self.beam)  # renormalised so it never under/overflows
+
+    def column(self) -> np.ndarray:
+        """Normalised log filtered marginal (V,), -inf off the beam."""
+        top = float(np.max(self.alpha))
+        return self.alpha - (top + np.log(np.sum(np.exp(self.alpha - top))))
 
 
 def viterbi(graph: GridGraph, log_prior: np.ndarray, trans: np.ndarray,

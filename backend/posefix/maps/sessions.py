@@ -90,7 +90,7 @@ class SessionStore:
             tracker = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0)
         except ValueError as exc:
             raise Conflict(f"start_xy_m: {exc}", code="bad_start", extra={"field": "start_xy_m"}) from None
-        summ = gaussian_summary(tracker.p_xy_m, tracker.filter.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))
+        summ = gaussian_summary(tracker.p_xy_m, tracker.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))
         sess = TrackingSession(secrets.token_urlsafe(16), owner_id, floorplan_id, model, tracker, now)
         with self._lock:
             self._items[sess.id] = sess
