@@ -27,7 +27,16 @@ from posefix.core import geodesy
 from posefix.core import rotations as rot
 from posefix.core import terms as T
 from posefix.core.config import ConfigError, CorrectionConfig
-from posefix.core.drift import DriftEstimate, GnssSteps, estimate_drift, gnss_steps, no_drift, step_window
+from posefix.core.drift import (
+    DriftEstimate,
+    GnssSteps,
+    edit_bends,
+    estimate_drift,
+    gnss_steps,
+    no_drift,
+    shape_change_evidence,
+    step_window,
+)
 from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes, select_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
@@ -228,21 +237,23 @@ class Problem:
         step_m = np.linalg.norm(np.diff(p, axis=0), axis=1)
         dt_s = np.diff(self.run.t_s[rows])
         rc = cfg.relative
-        sigma_rt = np.sqrt(
-            rc.sigma_t_floor_m**2 + rc.sigma_t_per_sqrt_s_m**2 * dt_s + (rc.sigma_t_per_m * step_m) ** 2
-            + implausible_motion_m(p, self.anchored_quat(rows), dt_s, rc.max_lateral_speed_mps) ** 2
-        )
+        var_rt = rc.sigma_t_floor_m**2 + rc.sigma_t_per_sqrt_s_m**2 * dt_s + (rc.sigma_t_per_m * step_m) ** 2
         sigma_rr = np.sqrt(rc.sigma_r_floor_rad**2 + rc.sigma_r_per_sqrt_s_rad**2 * dt_s)
         empty3 = np.zeros((0, 3))
         terms = T.build_terms(
             p, self.anchored_quat(rows), np.zeros(0, np.int64), empty3, empty3 + 1.0,
-            np.zeros(0, np.int64), empty3, empty3 + 1.0, sigma_rt, sigma_rr, cfg.gravity.sigma,
+            np.zeros(0, np.int64), empty3, empty3 + 1.0, np.sqrt(var_rt), sigma_rr, cfg.gravity.sigma,
             loss=cfg.location.loss, loss_scale=cfg.location.loss_scale,
         )
-        if len(self._static) > 32:  # a few keyframe sets' worth (about four entries each)
+        # sideways motion a vehicle cannot make is error, not motion (see terms.vehicle_motion): its
+        # sigma grows by it; the steps without it are kept beside, for solves with edits
+        delta, excess = T.vehicle_motion(terms.rel_delta_m, terms.rel_dR, dt_s, rc.max_lateral_speed_mps)
+        terms = dataclasses.replace(terms, rel_w_t=1.0 / np.sqrt(var_rt + excess**2))
+        if len(self._static) > 32:  # a few keyframe sets' worth (about six entries each)
             self._static.clear()
             self._local_to_anchor.clear()
         self._static[key] = terms
+        self._static[b"plausible" + key] = delta
         return terms
 
     def _gnss_steps(self, rows: np.ndarray, t_s: np.ndarray, p_rep: np.ndarray, g: np.ndarray) -> GnssSteps:
@@ -250,6 +261,19 @@ class Problem:
         key = ("steps", self._rows_key(rows))
         if key not in self._static:
             self._static[key] = gnss_steps((g - p_rep)[:, :2], window=step_window(t_s))
+        return self._static[key]
+
+    def _shape_evidence(self, rows: np.ndarray, t_s: np.ndarray, static: T.Terms, g: np.ndarray) -> np.ndarray:
+        """Where the reported pose's error most likely changed, per step (cached: the run only)."""
+        key = b"evidence" + rows.tobytes()
+        if key not in self._static:
+            rc = self.cfg.relative
+            p = static.p_rep_m
+            delta = np.einsum("kji,kj->ki", static.R_rep[:-1], np.diff(p, axis=0))
+            side = T.sideways_steps(delta, static.rel_dR)[2]
+            dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 1.0
+            n_short, n_long = (max(int(round(w / max(dt, 1e-9))), 1) for w in (rc.transient_short_s, rc.transient_long_s))
+            self._static[key] = shape_change_evidence((g - p)[:, :2], np.hypot(side[:, 0], side[:, 1]), n_short, n_long)
         return self._static[key]
 
     def _location_measurements(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -337,8 +361,18 @@ class Problem:
         else:
             drift = no_drift(len(act_rows))
         loc_idx = np.flatnonzero(has_fix)
+        rel_w_t, dragged = static.rel_w_t, np.zeros(len(act_rows), dtype=bool)
+        if cfg.relative.edit_bend_chi2 > 0 and len(e_act) > 1:
+            # edits the reported shape cannot join loosen the relative terms between them where
+            # the pose was most likely dragged, and the fixes that dragged it drop out (drift.edit_bends)
+            extra_rel, dragged = edit_bends(p_rep, 1.0 / static.rel_w_t**2,
+                                            self._shape_evidence(act_rows, t_act, static, g_nan), e_act, edit_c_m,
+                                            uc.sigma_h_m, cfg.relative.edit_bend_chi2, g_nan, lc.sigma_h_m)
+            if np.any(extra_rel > 0):
+                rel_w_t = 1.0 / np.sqrt(1.0 / static.rel_w_t**2 + extra_rel)
         sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[loc_idx] ** 2)
         loc_sigma = np.stack([sigma_h, sigma_h, np.full(len(loc_idx), lc.sigma_v_m)], axis=1)
+        loc_sigma[dragged[loc_idx]] = np.inf  # weight 0: kept in place so local solves see the same located set
         loc_g = g[loc_idx] - drift.bias_enu_m[loc_idx]
         user_sigma = np.tile([uc.sigma_h_m, uc.sigma_h_m, uc.sigma_v_m], (len(e_act), 1))
         user_sigma[~edit_has_alt, 2] = np.inf
@@ -347,7 +381,10 @@ class Problem:
         terms = dataclasses.replace(
             static,
             loc_idx=loc_idx, loc_g_m=loc_g, loc_w=1.0 / loc_sigma,
-            user_idx=e_act, user_c_m=c, user_w=1.0 / user_sigma,
+            user_idx=e_act, user_c_m=c, user_w=1.0 / user_sigma, rel_w_t=rel_w_t,
+            # with edits, the relative terms measure the reported steps without the sideways motion
+            # a vehicle cannot make; without any, the run stays exactly as reported
+            rel_delta_m=self._static[b"plausible" + act_rows.tobytes()] if len(e_act) else static.rel_delta_m,
         )
         x0 = self._warm_state(act_rows, p_rep, warm_start)
         result = None
@@ -630,9 +667,10 @@ def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarr
     """
     if max_speed_mps <= 0 or len(p_enu_m) < 2:
         return np.zeros(max(len(p_enu_m) - 1, 0))
-    step_body = rot.rotate(rot.quat_conjugate(q_wxyz[:-1]), np.diff(p_enu_m, axis=0))
-    sideways_m = np.hypot(step_body[:, 1], step_body[:, 2])
-    return np.maximum(sideways_m - max_speed_mps * dt_s, 0.0)
+    R = rot.quat_to_matrix(rot.normalize_quat(q_wxyz))
+    delta = np.einsum("kji,kj->ki", R[:-1], np.diff(p_enu_m, axis=0))
+    dR = np.einsum("kji,kjl->kil", R[:-1], R[1:])
+    return T.vehicle_motion(delta, dR, dt_s, max_speed_mps)[1]  # measured half-way through the step
 
 
 def prepare(run: PoseRun, cfg: CorrectionConfig | None = None) -> Problem:

@@ -1,6 +1,7 @@
 """Drift: the bias the edits reveal, its uncertainty, and the location weights it implies."""
 
 import numpy as np
+import pytest
 
 from posefix.core.drift import estimate_drift, estimate_walk, smooth_gauss_markov
 
@@ -122,3 +123,91 @@ def test_an_offset_switched_on_and_off_between_two_edits_is_taken_out():
     assert np.all(np.abs(d.bias_enu_m[inside, 0] - 12.0) < 1.5)
     assert np.mean(d.weight[inside]) > 0.2  # not written off (an unconfirmed step leaves about 0.01)
     assert np.all(np.abs(d.bias_enu_m[(t > 380) & (t < 520), 0]) < 2.0)  # step sizes are estimated to about a metre
+
+
+def test_edits_the_shape_cannot_join_bend_the_run_where_the_evidence_is():
+    from posefix.core.drift import edit_bends
+
+    k = 101
+    p = np.stack([10.0 * np.arange(k), np.zeros(k), np.zeros(k)], 1)
+    var = np.full(k - 1, 0.04)  # 0.2 m/sqrt(s), 1 s steps: 2 m over the interval
+    evidence = np.ones(k - 1)
+    evidence[60:65] = 1000.0  # where the pose slid
+    edits = np.array([0, 100])
+    c = p[edits].copy()
+    c[1, 1] += 12.0  # the edits say the pose's error changed by 12 m
+    extra_rel, dragged = edit_bends(p, var, evidence, edits, c, 0.5)
+    assert 0.5 * 144.0 == pytest.approx(var.sum() + extra_rel.sum())  # the interval now allows what the edits show
+    assert extra_rel[60:65].sum() > 0.9 * extra_rel.sum()  # most of it where the evidence is
+    assert np.all(dragged[1:100]) and not dragged[0] and not dragged[100]  # the fixes between drop out
+    # a change the relative sigmas already allow leaves everything as it was
+    c[1, 1] = 3.0
+    extra_rel, dragged = edit_bends(p, var, evidence, edits, c, 0.5)
+    assert not extra_rel.any() and not dragged.any()
+    # chi2 = 0 turns it off
+    c[1, 1] = 12.0
+    assert not edit_bends(p, var, evidence, edits, c, 0.5, chi2=0.0)[0].any()
+
+
+def test_shape_change_evidence_peaks_at_a_gnss_transient_and_at_sideways_motion():
+    from posefix.core.drift import shape_change_evidence
+
+    k = 300
+    rng = np.random.default_rng(3)
+    u = rng.normal(0, 2.5, (k, 2))
+    u[150:170, 0] += 15.0 * np.exp(-np.arange(20) / 8.0)  # the fix jumped, the pose follows it
+    side = np.full(k - 1, 0.05)
+    side[40] = 2.0
+    ev = shape_change_evidence(u, side, 5, 61)
+    assert 148 <= int(np.argmax(ev[100:200])) + 100 <= 160
+    assert int(np.argmax(ev[:100])) == 40
+    u[:] = np.nan  # no GNSS at all: the sideways motion alone
+    ev = shape_change_evidence(u, side, 5, 61)
+    assert int(np.argmax(ev)) == 40 and np.all(np.isfinite(ev))
+
+
+def _canyon_drive(every_s, seed=5, regime="canyon"):
+    from posefix.core import geodesy
+    from posefix.core.simulate import simulate
+    from posefix.engine import prepare
+    from posefix.io.edits import EditSet, Move
+
+    sim = simulate(duration_s=1800.0, rate_hz=10.0, edit_every_s=every_s, seed=seed, regime=regime)
+    problem = prepare(sim.run)
+    truth = geodesy.geodetic_to_enu(sim.truth.lat_deg, sim.truth.lon_deg, sim.truth.alt_m, problem.origin)
+    moves = [Move(e.t_s, e.lat_deg, e.lon_deg, None) for e in sim.edits]
+    return sim, problem, truth, moves, EditSet
+
+
+def _h_rmse(a, b):
+    return float(np.sqrt(np.mean(np.sum((a[:, :2] - b[:, :2]) ** 2, axis=1))))
+
+
+def test_a_pose_dragged_by_canyon_jumps_is_corrected_better_than_interpolating_the_edits():
+    """Urban-canyon offsets the pose inherited, edits every 30 s: the correction bends the run
+    where the pose was dragged (beating the naive linear interpolation of the edit offsets,
+    which it trailed by 25 % before), and the run between edits that agree keeps its shape."""
+    from posefix.core import geodesy
+
+    sim, problem, truth, moves, EditSet = _canyon_drive(30.0)
+    out = problem.full_run(problem.solve(EditSet(moves=moves)))
+    p = geodesy.geodetic_to_enu(out.run.lat_deg, out.run.lon_deg, out.run.alt_m, problem.origin)
+    rows = np.array([e.index for e in sim.edits])
+    off = problem.to_enu([m.lon_deg for m in moves], [m.lat_deg for m in moves], sim.run.alt_m[rows]) - problem.p_enu_m[rows]
+    naive = problem.p_enu_m.copy()
+    for j in range(2):
+        naive[:, j] += np.interp(sim.run.t_s, sim.run.t_s[rows], off[:, j])
+    assert _h_rmse(p, truth) < 0.8 * _h_rmse(naive, truth), (_h_rmse(p, truth), _h_rmse(naive, truth))
+    assert out.solver.iterations <= 10
+
+
+def test_one_more_edit_on_a_dragged_pose_solved_locally_lands_near_the_full_solve():
+    sim, problem, truth, moves, EditSet = _canyon_drive(30.0)
+    new = moves.pop(len(moves) // 2)
+    prev = problem.solve(EditSet(moves=moves))
+    edits = EditSet(moves=moves + [new])
+    local = problem.solve(edits, warm_start=prev, local=True)
+    full = problem.solve(edits)
+    assert "window" in local.solver.method
+    gap = np.hypot(*(local.keyframes.p_enu_m - full.keyframes.p_enu_m)[:, :2].T)
+    assert np.max(gap) < 0.05, np.max(gap)

@@ -195,7 +195,10 @@ def test_a_correction_warm_starts_the_next_solve():
     run, _ = hand_run(k=1201)
     problem = prepare(run)
     first = problem.full_run(problem.solve(EditSet(moves=[move(run, 300, 3.0)])))
-    both = EditSet(moves=[move(run, 300, 3.0), move(run, 900, -2.0)])
+    # (edits the reported shape can join: two that it cannot change the problem itself - the
+    # relative terms between them loosen and the fixes there drop out - so the first answer is no
+    # better a start than the reported poses)
+    both = EditSet(moves=[move(run, 300, 3.0), move(run, 900, 2.0)])
     warm = problem.solve(both, warm_start=first)
     cold = problem.solve(both)
     assert warm.solver.iterations <= cold.solver.iterations

@@ -102,3 +102,63 @@ def test_location_hessian_is_the_exact_loss_hessian_where_convex():
                 db = np.zeros_like(p0); db[3 * i + b] = h
                 num = (loc_cost(p0 + da + db) - loc_cost(p0 + da - db) - loc_cost(p0 - da + db) + loc_cost(p0 - da - db)) / (4 * h * h)
                 assert abs(num - H[i, a, b]) < 1e-5
+
+
+def test_a_car_turning_does_not_count_as_sliding_sideways():
+    """Sideways motion is measured half-way through the step: a steady turn moves along the chord."""
+    from posefix.core import rotations as rot
+
+    rate = np.radians(20.0)  # a tight corner: 20 deg/s at 8 m/s
+    k = 8
+    yaw = rate * np.arange(k)
+    radius = 8.0 / rate
+    p = np.stack([radius * np.sin(yaw), radius * (1 - np.cos(yaw)), np.zeros(k)], 1)
+    R = rot.exp_matrix(np.stack([np.zeros(k), np.zeros(k), yaw], 1))
+    delta = np.einsum("kji,kj->ki", R[:-1], np.diff(p, axis=0))
+    dR = np.einsum("kji,kjl->kil", R[:-1], R[1:])
+    s, _, side = T.sideways_steps(delta, dR)
+    assert np.abs(s[:, 1]).max() < 1e-9 and np.abs(side).max() < 1e-9  # all along the mid-step heading
+    assert np.abs(delta[:, 1]).max() > 1.0  # in the frame of the step's start it would look like 1.4 m/s
+    out, excess = T.vehicle_motion(delta, dR, np.ones(k - 1), 0.5)
+    assert np.all(excess == 0.0) and np.array_equal(out, delta)
+
+
+def test_sideways_motion_beyond_the_limit_is_taken_out_of_the_step():
+    from posefix.core import rotations as rot
+
+    rng = np.random.default_rng(2)
+    n = 30
+    delta = np.stack([np.full(n, 10.0), rng.normal(0, 0.05, n), rng.normal(0, 0.05, n)], 1)  # a good attitude
+    delta[7, 1] = 3.0  # one jump of the pose's error, 3 m sideways in 1 s
+    dR = np.tile(np.eye(3), (n, 1, 1))
+    out, excess = T.vehicle_motion(delta, dR, np.ones(n), 0.5)
+    assert np.flatnonzero(excess).tolist() == [7]
+    assert np.hypot(*out[7, 1:]) == pytest.approx(0.5, abs=0.05)  # sideways cut to about 0.5 m/s
+    assert out[7, 0] == delta[7, 0]  # forward kept
+    assert np.array_equal(np.delete(out, 7, axis=0), np.delete(delta, 7, axis=0))
+    off, none = T.vehicle_motion(delta, dR, np.ones(n), 0.0)  # check off
+    assert off is delta and np.all(none == 0.0)
+    # in a turn the cut is made in the mid-step frame and rotated back
+    dR2 = rot.exp_matrix(np.tile([0.0, 0.0, 0.4], (n, 1)))
+    out2, ex2 = T.vehicle_motion(delta, dR2, np.ones(n), 0.5)
+    _, _, side2 = T.sideways_steps(out2, dR2)
+    assert ex2[7] > 2.0 and np.hypot(*side2[7]) < 0.6
+    # an attitude that jitters by itself raises the limit: its own noise is not read as jumps
+    noisy = delta.copy()
+    noisy[:, 1:] = rng.normal(0, 0.8, (n, 2))
+    assert np.count_nonzero(T.vehicle_motion(noisy, dR, np.ones(n), 0.5)[1]) <= 1
+
+
+def test_a_sensor_frame_pitched_against_the_vehicle_is_not_a_jump():
+    """A dashboard device pitched 4 degrees shows vertical motion proportional to speed: not error."""
+    k = 40
+    speed = 10.0 + 8.0 * np.sin(np.arange(k - 1) / 5.0)
+    pitch = np.radians(4.0)
+    delta = np.stack([speed * np.cos(pitch), np.zeros(k - 1), speed * np.sin(pitch)], 1)
+    delta[20, 1] += 3.0  # one real sideways jump of 3 m
+    dR = np.tile(np.eye(3), (k - 1, 1, 1))
+    _, _, side = T.sideways_steps(delta, dR)
+    assert np.abs(np.delete(side, 20, axis=0)).max() < 1e-9
+    out, excess = T.vehicle_motion(delta, dR, np.ones(k - 1), 0.5)
+    assert np.flatnonzero(excess) == [20] and excess[20] == pytest.approx(2.5)
+    assert out[20] == pytest.approx(delta[20] - [0.0, 2.5, 0.0])  # only the jump's excess comes out

@@ -56,6 +56,9 @@ class RelativeConfig:
     sigma_t_per_sqrt_s_m: float = 0.2
     sigma_t_per_m: float = 0.002
     max_lateral_speed_mps: float = 0.5
+    edit_bend_chi2: float = 9.21
+    transient_short_s: float = 5.0
+    transient_long_s: float = 60.0
     sigma_r_floor_rad: float = 0.00001
     sigma_r_per_sqrt_s_rad: float = 0.00003
 
@@ -96,7 +99,8 @@ _CHOICES = {
 _POSITIVE = {
     ("location", "sigma_h_m"), ("location", "sigma_v_m"), ("location", "loss_scale"),
     ("user", "sigma_h_m"), ("user", "sigma_v_m"), ("gravity", "sigma"),
-    ("relative", "sigma_t_floor_m"), ("relative", "sigma_r_floor_rad"), ("solver", "max_iterations"),
+    ("relative", "sigma_t_floor_m"), ("relative", "sigma_r_floor_rad"),
+    ("relative", "transient_short_s"), ("relative", "transient_long_s"), ("solver", "max_iterations"),
     ("solver", "ftol"), ("rules", "every_n"), ("drift", "bias_sigma_m"), ("drift", "bias_tau_s"),
 }
 

@@ -462,10 +462,16 @@ def estimate_drift(
     spread = float(1.4826 * np.median(dev) / np.sqrt(np.log(4.0))) if len(dev) > 1 else 0.0
     # A bias is "detected" when the offsets stand out of the noise they would have without
     # one: a median offset beyond 3 of its sigmas, or a wander over the typical spacing of
-    # edits of more than twice the offsets' noise (the pooled estimate of q is rough).
+    # edits of more than twice the offsets' noise (the pooled estimate of q is rough), or all
+    # the offsets together beyond the 99 % point of the chi-square they would follow (a few
+    # edits that agree on one offset: their median is a poor estimate, their sum is not).
+    from scipy.stats import chi2
+
     typical_dt = float(np.median(np.diff(t_e))) if len(t_e) > 1 else float(kf_t_s[-1] - kf_t_s[0])
     median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise_h[0] / len(t_e))
-    detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise_h[0])
+    together = float(np.sum(np.sum(d[:, :2] ** 2, axis=1) / noise_h))
+    detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise_h[0]
+                    or together > chi2.ppf(0.99, 2 * len(t_e)))
     if frozen is not None:
         detected = bool(frozen[2])
     if not detected:
@@ -508,3 +514,125 @@ def estimate_drift(
         edit_t_s=t_e,
         n_steps=int(len(steps.index)),
     )
+
+
+# ----------------------------------------------------------------------------- edits the shape cannot join
+
+
+def _fill_gaps(u: np.ndarray) -> np.ndarray:
+    """Rows of u (k,d) without a fix (NaN) filled by linear interpolation along the rows; zeros when none has one."""
+    ok = np.all(np.isfinite(u), axis=1)
+    if np.all(ok):
+        return u
+    if not np.any(ok):
+        return np.zeros_like(u)
+    idx = np.arange(len(u))
+    return np.column_stack([np.interp(idx, idx[ok], u[ok, j]) for j in range(u.shape[1])])
+
+
+def shape_change_evidence(u_h: np.ndarray, sideways_m: np.ndarray, short: int, long: int) -> np.ndarray:
+    """(k-1,) relative evidence, per step between keyframes, that the reported pose's error changed there.
+
+    Two physical signs, each scaled by its mean over the run so they weigh alike:
+
+    * the GNSS innovation transient: a pose that follows its GNSS (an INS fed a biased fix)
+      moves its error towards the fix, so its error changes where the fix departs from its
+      usual level relative to the pose: ``|med_short(u) - med_long(u)|^2`` with u = g - p~
+      (medians over ``short`` and ``long`` keyframes make outliers and white noise harmless);
+    * sideways/vertical motion of the reported step (mid-step body frame) a road vehicle
+      cannot make, ``|s_lateral|^2`` (see ``terms.sideways_steps``).
+
+    A run without GNSS (u = 0) or without sideways motion simply lacks that sign.
+    """
+    from scipy.ndimage import median_filter
+
+    k = len(u_h)
+    ev = np.zeros(max(k - 1, 0))
+    if k < 2:
+        return ev
+    u = _fill_gaps(np.asarray(u_h, dtype=float))
+    short, long = max(int(short), 1), max(int(long), 1)
+    dev = median_filter(u, size=(short, 1), mode="nearest") - median_filter(u, size=(long, 1), mode="nearest")
+    innov = np.einsum("ij,ij->i", dev, dev)
+    innov = 0.5 * (innov[:-1] + innov[1:])
+    side = np.asarray(sideways_m, dtype=float) ** 2
+    for sign in (innov, side):
+        m = float(np.mean(sign))
+        if m > 0:
+            ev += sign / m
+    return ev + 1e-6  # never exactly zero: an interval without any sign shares its change evenly
+
+
+def edit_bends(
+    p_rep_m: np.ndarray,
+    rel_var_m2: np.ndarray,
+    evidence: np.ndarray,
+    edit_kf: np.ndarray,
+    edit_c_m: np.ndarray,
+    sigma_u_m: float,
+    chi2: float = 9.21,
+    g_m: np.ndarray | None = None,
+    sigma_w_m: float = 3.0,
+    window: int = 5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Extra relative-translation variance (k-1,) m^2 between consecutive edits the reported
+    shape cannot join, and the keyframes strictly inside those intervals (k,) bool.
+
+    Between consecutive edits a < b the reported shape predicts the horizontal displacement
+    ``p~_b - p~_a``, the edits say ``c_b - c_a``; their difference D has per axis the variance
+    ``V = sum s_RT,i^2`` that the relative terms allow over the interval plus the edits'
+    ``2 sigma_u^2``.  Where ``|D|^2 > chi2 (V + 2 sigma_u^2)`` (9.21: the 99 % point of a
+    chi-square with 2 degrees of freedom) the pose's error changed there more than its model
+    admits (an INS dragged by a GNSS jump, a wheel slip), and the edits are far stronger
+    evidence than the shape: the interval's relative variance is raised to what the edits
+    show, ``|D|^2 / 2`` per axis, the extra ``|D|^2/2 - V`` shared among its steps in
+    proportion to ``evidence`` (``shape_change_evidence``: where the error most likely
+    changed), so the correction bends the run where the pose was dragged, not evenly over
+    the interval.  Where the location measurements ``g_m`` (k,3, NaN without a fix; None: the
+    reported pose itself) jumped with the pose - the edits' GNSS offsets (``edit_offsets``) at
+    the two ends differ beyond the same chi-square of their noise - the pose was dragged by its
+    GNSS, and the fixes strictly between those edits carry an error change of that size at a
+    time nobody knows: they are returned as ``dragged`` (k,) and the caller drops them (weight
+    0); the edits at both ends pin the interval.  Fixes that did not jump (a pose wandering
+    more than its model, under good GNSS) are kept.  (Merely down-weighting them leaves robust, non-convex location terms
+    holding keyframes whose relative terms were just loosened: worse answers, and the solver
+    needs three times the iterations.)  Elsewhere nothing changes.  ``chi2`` 0 turns this off.
+    """
+    k = len(p_rep_m)
+    extra_rel = np.zeros(max(k - 1, 0))
+    dragged = np.zeros(k, dtype=bool)
+    edit_kf = np.asarray(edit_kf, dtype=np.int64)
+    if chi2 <= 0 or len(edit_kf) < 2:
+        return extra_rel, dragged
+    order = np.argsort(edit_kf, kind="stable")
+    e = edit_kf[order]
+    c = np.asarray(edit_c_m, dtype=float)[order]
+    a, b = e[:-1], e[1:]
+    ok = b > a
+    a, b, ca, cb = a[ok], b[ok], c[:-1][ok], c[1:][ok]
+    cum_var = np.concatenate([[0.0], np.cumsum(rel_var_m2)])
+    V = cum_var[b] - cum_var[a]
+    D = (cb[:, :2] - ca[:, :2]) - (p_rep_m[b, :2] - p_rep_m[a, :2])
+    d2 = np.einsum("ij,ij->i", D, D)
+    bent = d2 > chi2 * (V + 2.0 * sigma_u_m**2)
+    if not np.any(bent):
+        return extra_rel, dragged
+    g_m = p_rep_m if g_m is None else g_m
+    off = edit_offsets(np.zeros(k), p_rep_m, g_m, np.concatenate([a[bent], b[bent]]),
+                       np.concatenate([ca[bent], cb[bent]]), window)[:, :2]
+    n_win = min(2 * window + 1, k)
+    noise = sigma_u_m**2 + (MEDIAN_EFFICIENCY * sigma_w_m) ** 2 / n_win
+    jump = off[np.count_nonzero(bent):] - off[:np.count_nonzero(bent)]
+    gnss_jumped = np.einsum("ij,ij->i", jump, jump) > chi2 * 2.0 * noise
+    a, b, d2, V = a[bent], b[bent], d2[bent], V[bent]
+    E = np.maximum(0.5 * d2 - V, 0.0)
+    cum_ev = np.concatenate([[0.0], np.cumsum(evidence)])
+    S = cum_ev[b] - cum_ev[a]
+    # steps and keyframes of each bent interval (they do not overlap: consecutive edits)
+    n = b - a
+    j = np.repeat(np.arange(len(a)), n)
+    step = a[j] + (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n))
+    extra_rel[step] = E[j] * evidence[step] / S[j]
+    inner = (step > a[j]) & gnss_jumped[j]
+    dragged[step[inner]] = True
+    return extra_rel, dragged

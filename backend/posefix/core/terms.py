@@ -123,6 +123,66 @@ def build_terms(
     )
 
 
+RAYLEIGH_MEDIAN = 1.1774  # median of the length of a 2-D vector of unit-sigma Gaussians
+MISALIGNMENT_MIN_STEPS = 10  # forward steps needed to estimate how the pose's frame sits in the vehicle
+
+
+def sideways_steps(rel_delta_m: np.ndarray, rel_dR: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reported steps in the mid-step body frame (k-1,3), half relative rotations (k-1,3) and
+    the sideways/vertical motion a vehicle would have made (k-1,2), metres.
+
+    A vehicle turning at a steady rate moves along the chord, whose direction is the heading
+    half-way through the turn: ``s_ij = Exp(-phi/2) D_ij`` with ``phi = Log(dR~_ij)``.  Measured
+    in the frame of keyframe i instead, a 90 degree corner taken in 4 s would show 1-2 m of
+    false sideways motion per second.  The pose's body frame is often the sensor's, mounted at
+    a small fixed angle to the vehicle (a dashboard device pitched down 4 degrees shows 1.2 m/s
+    of "vertical" motion at 17 m/s): that misalignment makes sideways/vertical motion
+    proportional to forward motion, so the run's median ratio (over steps moving forward by
+    more than a metre) is taken out first.  What is left, left and up, is what a road vehicle
+    cannot do beyond side slip and bumps.
+    """
+    half = 0.5 * rot.log_matrix(rel_dR)
+    s = np.einsum("kij,kj->ki", rot.exp_matrix(-half), rel_delta_m)
+    fwd = s[:, 0] > 1.0
+    m = np.zeros(2)
+    if np.count_nonzero(fwd) >= MISALIGNMENT_MIN_STEPS:
+        m = np.median(s[fwd, 1:] / s[fwd, :1], axis=0)
+    return s, half, s[:, 1:] - s[:, :1] * m
+
+
+def vehicle_motion(rel_delta_m: np.ndarray, rel_dR: np.ndarray, dt_s: np.ndarray, max_speed_mps: float):
+    """Non-holonomic check of the reported steps: (plausible steps D' (k-1,3), excess (k-1,) m).
+
+    A road vehicle does not slide sideways or jump vertically faster than ``max_speed_mps``
+    (side slip and bumps stay well below 0.5 m/s).  The part of a reported step's sideways
+    and vertical motion (see ``sideways_steps``) beyond ``max_speed_mps * dt`` is not motion
+    but a jump of the pose's error (an INS following an urban-canyon GNSS offset), so the
+    relative term measures the step without it (that part scaled down to the limit) and its
+    sigma grows by the excess removed (how much was really error is not known).  Where the
+    attitude itself jitters, the limit rises to 4 sigmas of the run's own sideways motion.
+    ``max_speed_mps`` 0: steps unchanged.
+    """
+    k1 = len(rel_delta_m)
+    if max_speed_mps <= 0 or k1 == 0:
+        return rel_delta_m, np.zeros(k1)
+    s, half, side_yz = sideways_steps(rel_delta_m, rel_dR)
+    side = np.hypot(side_yz[:, 0], side_yz[:, 1])
+    dt_s = np.asarray(dt_s, dtype=float)
+    # an attitude that jitters (a cheap IMU, a heading derived from a noisy track) shows sideways
+    # motion of its own: only what stands out of it (4 sigmas of its Rayleigh spread) is read as a jump
+    noise_mps = float(np.median(side / np.maximum(dt_s, 1e-9))) / RAYLEIGH_MEDIAN
+    limit = max(max_speed_mps, 4.0 * noise_mps) * dt_s
+    excess = np.maximum(side - limit, 0.0)
+    hit = excess > 0
+    if not np.any(hit):
+        return rel_delta_m, excess
+    s_hit = s[hit].copy()
+    s_hit[:, 1:] -= side_yz[hit] * (excess[hit] / side[hit])[:, None]  # cut to the limit, misalignment kept
+    out = rel_delta_m.copy()
+    out[hit] = np.einsum("kij,kj->ki", rot.exp_matrix(half[hit]), s_hit)
+    return out, excess
+
+
 def window_terms(terms: Terms, a: int, b: int) -> Terms:
     """The terms that touch only keyframes a..b (inclusive), re-indexed from 0."""
     loc = (terms.loc_idx >= a) & (terms.loc_idx <= b)
@@ -139,15 +199,22 @@ def window_terms(terms: Terms, a: int, b: int) -> Terms:
 
 
 def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: float = 1e-3) -> np.ndarray | None:
-    """(k,) bool: keyframes whose location or user terms differ between two problems on the
-    same keyframes (None when they cannot be compared: other keyframes or located set)."""
+    """(k,) bool: keyframes whose location, user or relative-translation terms differ between
+    two problems on the same keyframes (None when they cannot be compared: other keyframes or located set)."""
     k = new.n_keyframes
     if old.n_keyframes != k or not np.array_equal(new.loc_idx, old.loc_idx):
         return None
+    if new.rel_delta_m is not old.rel_delta_m and not np.array_equal(new.rel_delta_m, old.rel_delta_m):
+        return None  # other reported steps (the first edit of a run measures them without sideways jumps)
     out = np.zeros(k, dtype=bool)
     moved = np.any(np.abs(new.loc_g_m - old.loc_g_m) > tol_m, axis=1)
     rew = np.any(np.abs(new.loc_w - old.loc_w) > tol_rel * np.abs(old.loc_w), axis=1)
     out[new.loc_idx[moved | rew]] = True
+    # relative terms re-weighted (edits the reported shape cannot join loosen them): both ends
+    if len(new.rel_w_t) == len(old.rel_w_t) and new.rel_w_t is not old.rel_w_t:
+        rel = np.flatnonzero(np.abs(new.rel_w_t - old.rel_w_t) > tol_rel * np.abs(old.rel_w_t))
+        out[rel] = True
+        out[rel + 1] = True
     # user terms: an edit added or removed, or moved / re-weighted (vectorised over the edits)
     both = np.intersect1d(new.user_idx, old.user_idx)
     out[np.setxor1d(new.user_idx, old.user_idx)] = True
