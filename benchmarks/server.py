@@ -1,9 +1,11 @@
 """Benchmark the web service end to end over loopback HTTP.
 
-    python -m benchmarks.server [--quick] [--database-url URL] [--operators N] [--load-s S]
+    python -m benchmarks.server [--quick] [--postgres [ADMIN_URL] | --database-url URL] [--workers N]
+                                [--operators N] [--load-s S] [--generator-processes P]
 
-Starts ``posefix serve`` (its own process, embedded worker on SQLite) on a fresh data
-directory, then measures, as a client would see it:
+Starts ``posefix serve`` (its own process; on SQLite one uvicorn process with the embedded job
+worker, on PostgreSQL ``--workers`` uvicorn processes and a ``posefix worker`` process) on a
+fresh data directory, then measures, as a client would see it:
 
 - import: upload of a one-hour 100 Hz run (360,001 samples, 3,601 keyframes) as CSV, from
   the first byte sent to the keyframes GeoJSON being served (target ≤ 3 s);
@@ -13,7 +15,13 @@ directory, then measures, as a client would see it:
   HTTP to 8 concurrent clients;
 - load: N operators (default 50) for S seconds (default 60), each logged in with its own
   session and looping over "load the run's keyframes, drag (preview), fetch 6 tiles" with
-  0.5-1.5 s of thinking between actions (target: no errors, p95 ≤ 250 ms).
+  0.5-1.5 s of thinking between actions (target: no errors, p95 ≤ 250 ms). Each operator
+  behaves as a browser tab does: keep-alive connections, gzip accepted, and a reload of the
+  keyframes revalidated with ``If-None-Match`` (304 when unchanged) — what every browser
+  does on its own for a ``no-cache`` response with an ETag: realism, not a shortcut. The
+  operators are spread over P generator processes (default 5; a browser has its own CPU),
+  and the table shows the generator's CPU, the server's CPU, the load average, and beside
+  each client-side p95 the server's own p95 (from its /metrics histogram).
 
 ``--quick`` shrinks everything (10 min run, 10 operators for 10 s) to check the
 benchmark itself in about a minute. Prints one table: figure, target, and their ratio
@@ -369,24 +377,101 @@ async def operator_loop(base: str, cookies: httpx.Cookies, run_id: int, tiles: l
             await asyncio.sleep(rng.uniform(0.5, 1.5))
 
 
-async def run_load(base: str, sessions: list[httpx.Cookies], seconds: float, run_id: int,
-                   tiles: list[tuple[int, int, int]]) -> Samples:
+async def run_operators(base: str, sessions: list[dict[str, str]], start_wall: float, seconds: float, run_id: int,
+                        tiles: list[tuple[int, int, int]], first_seed: int) -> Samples:
     samples = Samples()
+    await asyncio.sleep(max(start_wall - time.time(), 0.0))  # every generator process starts together
     stop_at = time.perf_counter() + seconds
     await asyncio.gather(*(
-        operator_loop(base, cookies, run_id, tiles, stop_at, samples, seed=i) for i, cookies in enumerate(sessions)
+        operator_loop(base, httpx.Cookies(cookies), run_id, tiles, stop_at, samples, seed=first_seed + i)
+        for i, cookies in enumerate(sessions)
     ))
     return samples
 
 
-def process_cpu_s(pid: int) -> float:
-    """CPU seconds (user + system) a process and its reaped children have used (Linux /proc)."""
+def generator_process(args: tuple) -> tuple[Samples, float]:  # type: ignore[type-arg]
+    """One load-generator process: its share of the operators; returns their samples and its CPU seconds."""
+    started_cpu = time.process_time()
+    samples = asyncio.run(run_operators(*args))
+    return samples, time.process_time() - started_cpu
+
+
+def run_load(base: str, sessions: list[httpx.Cookies], seconds: float, run_id: int,
+             tiles: list[tuple[int, int, int]], processes: int) -> tuple[Samples, float]:
+    """The operators, spread over ``processes`` generator processes (a browser per operator
+    has its own CPU; one event loop for all 50 would make every operator wait while another
+    parses its GeoJSON). Returns the merged samples and the generators' CPU seconds."""
+    import concurrent.futures
+    import multiprocessing
+
+    cookies = [dict(c.items()) for c in sessions]
+    processes = max(1, min(processes, len(cookies)))
+    shares = [list(range(len(cookies)))[i::processes] for i in range(processes)]
+    start_wall = time.time() + 3.0  # time for the processes to start and import
+    merged, cpu_s = Samples(), 0.0
+    with concurrent.futures.ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(generator_process, (base, [cookies[i] for i in share], start_wall, seconds, run_id,
+                                                   tiles, share[0] if share else 0)) for share in shares if share]
+        for future in futures:
+            samples, cpu = future.result()
+            cpu_s += cpu
+            merged.latencies_s += samples.latencies_s
+            merged.errors += samples.errors
+            for kind, values in samples.by_kind.items():
+                merged.by_kind.setdefault(kind, []).extend(values)
+            for kind, n in samples.error_kinds.items():
+                merged.error_kinds[kind] = merged.error_kinds.get(kind, 0) + n
+    return merged, cpu_s
+
+
+def _stat(pid: int) -> list[str] | None:
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
+        return None
+
+
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) a process, its live children (uvicorn's worker processes)
+    and its reaped children have used (Linux /proc)."""
+    fields = _stat(pid)
+    if fields is None:
         return float("nan")
-    utime, stime, cutime, cstime = (int(v) for v in fields[11:15])
-    return (utime + stime + cutime + cstime) / os.sysconf("SC_CLK_TCK")
+    total = sum(int(v) for v in fields[11:15])
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and (child := _stat(int(entry.name))) is not None and child[1] == str(pid):
+            total += sum(int(v) for v in child[11:13])
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def create_postgres_database(admin_url: str) -> tuple[str, str]:
+    """A fresh database on the PostgreSQL server of ``admin_url``: (its URL, its name)."""
+    import uuid
+
+    from sqlalchemy import create_engine, text
+    from sqlalchemy.engine import make_url
+
+    name = f"posefix_bench_{uuid.uuid4().hex[:10]}"
+    engine = create_engine(admin_url, isolation_level="AUTOCOMMIT")
+    with engine.connect() as conn:
+        conn.execute(text(f'CREATE DATABASE "{name}"'))
+    engine.dispose()
+    return make_url(admin_url).set(database=name).render_as_string(hide_password=False), name
+
+
+def drop_postgres_database(admin_url: str, name: str) -> None:
+    from sqlalchemy import create_engine, text
+
+    engine = create_engine(admin_url, isolation_level="AUTOCOMMIT")
+    with engine.connect() as conn:
+        conn.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+    engine.dispose()
+
+
+def start_worker(env: dict[str, str], log_path: Path) -> subprocess.Popen:
+    """A ``posefix worker`` process (PostgreSQL: the API processes run no embedded worker)."""
+    return subprocess.Popen([str(Path(sys.executable).parent / "posefix"), "worker"], env={**os.environ, **env},
+                            stdout=open(log_path, "wb"), stderr=subprocess.STDOUT, cwd=REPO)
 
 
 def latency_buckets(base: str) -> dict[tuple[str, str], dict[float, float]]:
@@ -438,10 +523,17 @@ def print_table(rows: list[Row]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small run and a short load: checks the benchmark")
-    parser.add_argument("--database-url", default="", help="PostgreSQL URL (default: SQLite in a temp dir)")
+    parser.add_argument("--database-url", default="", help="PostgreSQL URL of an empty database (default: SQLite in a temp dir)")
+    parser.add_argument("--postgres", nargs="?", const="postgresql+psycopg://postgres@127.0.0.1:5432/test", default="",
+                        metavar="ADMIN_URL", help="a fresh PostgreSQL database made (and dropped) on this server "
+                        "(default postgresql+psycopg://postgres@127.0.0.1:5432/test)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="uvicorn worker processes of the server (PostgreSQL only; one per core on a dedicated machine)")
     parser.add_argument("--operators", type=int, default=None, help="simulated operators (default 50; quick 10)")
     parser.add_argument("--load-s", type=float, default=None, help="load duration in s (default 60; quick 10)")
     parser.add_argument("--keep", action="store_true", help="keep the temporary data directory")
+    parser.add_argument("--generator-processes", type=int, default=5,
+                        help="load-generator processes the operators are spread over (default 5)")
     args = parser.parse_args()
     quick = args.quick
     n_operators = args.operators or (10 if quick else 50)
@@ -449,6 +541,11 @@ def main() -> None:
     duration_s, rate_hz = (600.0, 100.0) if quick else (3600.0, 100.0)
 
     workdir = Path(tempfile.mkdtemp(prefix="posefix-bench-"))
+    pg_name = ""
+    if args.postgres:
+        args.database_url, pg_name = create_postgres_database(args.postgres)
+    if args.workers > 1 and not args.database_url:
+        parser.error("--workers above 1 needs PostgreSQL (--postgres or --database-url)")
     env = {
         "POSEFIX_DATA_DIR": str(workdir / "var"),
         "POSEFIX_ENVIRONMENT": "development",
@@ -459,11 +556,15 @@ def main() -> None:
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     rows: list[Row] = []
-    server = None
+    server = job_worker = None
     try:
         print(f"· data in {workdir}; creating {n_operators} operators", flush=True)
         prepare_database(env, n_operators)
-        server = start_server(env, port, workdir / "server.log")
+        server = start_server(env, port, workdir / "server.log", ("--workers", str(args.workers)))
+        if args.database_url:
+            job_worker = start_worker(env, workdir / "worker.log")
+        print(f"· server: {args.workers} uvicorn process(es) on {'PostgreSQL' if args.database_url else 'SQLite'}, "
+              f"job worker {'process' if args.database_url else 'embedded'}", flush=True)
         admin = login(base, *ADMIN)
 
         print(f"· simulating a {duration_s / 60:.0f} min {rate_hz:g} Hz run", flush=True)
@@ -503,9 +604,9 @@ def main() -> None:
         print(f"· load: {n_operators} operators for {load_s:.0f} s", flush=True)
         sessions = login_operators(base, n_operators)
         before = latency_buckets(base)
-        cpu_before, server_cpu_before = time.process_time(), process_cpu_s(server.pid)
-        load = asyncio.run(run_load(base, sessions, load_s, run_id, keys[-40:]))
-        generator_cpu = (time.process_time() - cpu_before) / load_s
+        server_cpu_before = process_cpu_s(server.pid)
+        load, generator_cpu_s = run_load(base, sessions, load_s, run_id, keys[-40:], args.generator_processes)
+        generator_cpu = generator_cpu_s / load_s
         server_cpu = (process_cpu_s(server.pid) - server_cpu_before) / load_s
         load_during = os.getloadavg()[0]  # the 1-minute average: nearly the load run's own minute
         after = latency_buckets(base)
@@ -515,7 +616,7 @@ def main() -> None:
         rows.append(Row("load: errors", len(load.errors), "", None,
                         note="target 0" + (f"; {kinds}; first: {load.errors[0][:160]}" if load.errors else "")))
         rows.append(Row("load: CPU of the load generator", 100 * generator_cpu, "%", None,
-                        note=f"of one core; server process {100 * server_cpu:.0f} %; {os.cpu_count()} CPUs, "
+                        note=f"of one core, {args.generator_processes} processes; server process {100 * server_cpu:.0f} %; {os.cpu_count()} CPUs, "
                              f"load average {load_during:.1f} at the end of the load"))
         rows.append(Row("load: p50", load.p(50), "ms", None))
         rows.append(Row("load: p95", load.p(95), "ms", 250.0))
@@ -532,12 +633,16 @@ def main() -> None:
         args.keep = True
         raise
     finally:
-        if server is not None:
-            server.send_signal(signal.SIGINT)
+        for process in (server, job_worker):
+            if process is None:
+                continue
+            process.send_signal(signal.SIGINT)
             try:
-                server.wait(timeout=30)
+                process.wait(timeout=30)
             except subprocess.TimeoutExpired:
-                server.kill()
+                process.kill()
+        if pg_name:
+            drop_postgres_database(args.postgres, pg_name)
         if not args.keep:
             shutil.rmtree(workdir, ignore_errors=True)
     print_table(rows)
