@@ -415,22 +415,26 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
     # relative constraints (no fix, no edit)
     ab_s[BAND_U] += 1e-9 * np.maximum(ab_s[BAND_U], 1e-12)
     rows, col_off, ia, ib = _position_band_index()
-    li = loc_idx[loc_free]
-    band_rows = np.broadcast_to(rows, (len(li), len(rows)))
-    band_cols = 6 * li[:, None] + col_off[None, :]
-    g_rows = 6 * li[:, None] + np.arange(3)[None, :]
+    free = np.flatnonzero(loc_free)
+    li = loc_idx[free]
+    # flat places of the located keyframes' position blocks (upper triangle) in the band, read in
+    # Fortran order (element (r, c) at c * 12 + r), and of their positions in the state
+    band_flat = ((6 * li[:, None] + col_off[None, :]) * (BAND_U + 1) + rows[None, :]).ravel()
+    tri = (3 * ia + ib)[None, :]
+    g_flat = (6 * li[:, None] + np.arange(3)[None, :]).ravel()
     fixed_rows = None if fixed is None else (6 * np.flatnonzero(fixed)[:, None] + np.arange(6)[None, :]).ravel()
     x = x_start.copy()
     for step in range(1, max_steps + 1):
         g_loc, H_loc = T.location_model(terms, x.reshape(-1, 6)[:, :3])
         # the model's gradient with the full matrix: a held keyframe away from x_lin (a window
         # solved before moved it) still pulls its free neighbour
-        g = g_c + band_matvec(ab_c, x - x_lin)
-        g[g_rows] += g_loc[loc_free]
+        d = x - x_lin
+        g = g_c + band_matvec(ab_c, d) if d.any() else g_c.copy()
+        g[g_flat] += g_loc[free].ravel()
         if fixed_rows is not None:
             g[fixed_rows] = 0.0
         ab = ab_s.copy(order="F")
-        ab[band_rows, band_cols] += H_loc[loc_free][:, ia, ib]
+        ab.reshape(-1, order="F")[band_flat] += H_loc.reshape(-1, 9)[free[:, None], tri].ravel()
         try:
             dx = solve_banded_spd(ab, -g)
         except LinAlgError:
