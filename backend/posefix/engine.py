@@ -471,10 +471,11 @@ class Problem:
             fixed[0] = lo < a
             fixed[-1] = hi > b
             x_sub0 = xs[lo:hi + 1].ravel()
-            lin_w, before = None, None
+            lin_w, before, at_lin = None, None, False
             if lin is not None:
                 lin_w = lin.window(lo, hi)
-                if np.array_equal(lin_w.x_lin, x_sub0):  # warm from the solve that built it: costs known
+                at_lin = np.array_equal(lin_w.x_lin, x_sub0)  # warm from the solve that built it: costs known
+                if at_lin:
                     before = {**lin.window_costs(lo, hi, sub.rel_w_t), **position_term_costs(sub, xs[lo:hi + 1, :3])}
             out = solve_local_newton(sub, x_sub0, fixed, linearisation=lin_w, cost_before=before)
             if out is None:
@@ -492,7 +493,11 @@ class Problem:
             margin *= 3
         x = xs.copy()
         x[lo:hi + 1] = x_sub.reshape(-1, 6)
-        old_window = _window_costs_before(T.window_terms(old, lo, hi), sub, x_sub0, res.cost_before)
+        old_sub = T.window_terms(old, lo, hi)
+        if at_lin:  # the previous problem's window costs at the same start, from the kept model too
+            old_window = {**lin.window_costs(lo, hi, old_sub.rel_w_t), **position_term_costs(old_sub, xs[lo:hi + 1, :3])}
+        else:
+            old_window = _window_costs_before(old_sub, sub, x_sub0, res.cost_before)
         rest = {name: old_result.cost_after[name] - old_window[name] for name in T.TERM_NAMES}
         before = {name: rest[name] + res.cost_before[name] for name in T.TERM_NAMES}
         after = {name: rest[name] + res.cost_after[name] for name in T.TERM_NAMES}

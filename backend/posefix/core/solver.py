@@ -363,11 +363,16 @@ def _model_from_linearisation(terms: T.Terms, lin: WindowModel) -> tuple[np.ndar
     if terms.rel_w_t is not lin.rel_w_t:
         edges = np.flatnonzero(terms.rel_w_t != lin.rel_w_t)
         if len(edges):
-            n = terms.n_keyframes
-            dD, dU = np.zeros((n, 6, 6)), np.zeros((n - 1, 6, 6))
-            _reweight_relative_translation(terms, x_lin, edges, terms.rel_w_t[edges] ** 2 - lin.rel_w_t[edges] ** 2,
-                                           dD, dU, g)
-            ab += pack_banded(dD, dU)
+            # the blocks of keyframes e0..e1 + 1 change: build and pack that stretch only
+            e0, e1 = int(edges[0]), int(edges[-1])
+            m = e1 - e0 + 2
+            dD, dU = np.zeros((m, 6, 6)), np.zeros((m - 1, 6, 6))
+            dg = np.zeros(6 * m)
+            sub = dataclasses.replace(terms, R_rep=terms.R_rep[e0:e1 + 2], rel_delta_m=terms.rel_delta_m[e0:e1 + 1])
+            _reweight_relative_translation(sub, x_lin[6 * e0:6 * e1 + 12], edges - e0,
+                                           terms.rel_w_t[edges] ** 2 - lin.rel_w_t[edges] ** 2, dD, dU, dg)
+            ab[:, 6 * e0:6 * e1 + 12] += pack_banded(dD, dU)
+            g[6 * e0:6 * e1 + 12] += dg
     ui = terms.user_idx
     w2 = terms.user_w**2
     ab[BAND_U, (6 * ui[:, None] + np.arange(3)).ravel()] += w2.ravel()  # (at most one user term per keyframe)
