@@ -435,12 +435,38 @@ def print_edit_section() -> None:
           f"(target p95 <= 100 ms)", flush=True)
 
 
+def print_batch_section(sizes) -> None:
+    print("\n1. Batch solve, same problem (mixed regime, 1 keyframe/s, 1 edit per 100 keyframes)")
+    print(f"{'keyframes':>10} {'posefix s':>10} {'it':>3} {'GTSAM LM s':>11} {'it':>3} {'ratio':>6} "
+          f"{'cost posefix':>14} {'cost GTSAM*':>14} {'rel diff':>9}  target")
+    for r in bench_batch(sizes):
+        ratio = r["t_pf"] / r["t_gt"]
+        rel = (r["c_gt"] - r["c_pf"]) / r["c_pf"]
+        target = "ratio<=0.5, |rel|<=1e-6" if r["k"] in (3600, 100_000) else ""
+        print(f"{r['k']:>10,} {r['t_pf']:>10.3f} {r['it_pf']:>3} {r['t_gt']:>11.3f} {r['it_gt']:>3} {ratio:>6.2f} "
+              f"{r['c_pf']:>14.6f} {r['c_gt']:>14.6f} {rel:>9.1e}  {target}", flush=True)
+    print("   * GTSAM's final poses scored with the posefix cost (GTSAM's own error: see README).")
+
+
+def print_accuracy_section(spacings, duration: float, plot_dir: Path) -> None:
+    print(f"\n4. Accuracy vs truth, horizontal RMSE in metres ({duration:.0f} s drives at 10 Hz, default settings)")
+    print(f"{'regime':>9} {'edit every':>10} {'input':>7} {'naive':>7} {'GTSAM':>7} {'posefix':>8} "
+          f"{'vs naive':>9} {'vs GTSAM':>9} {'input/pf':>9}")
+    acc = bench_accuracy(spacings, list(REGIMES), duration, plot_dir=plot_dir)
+    for r in acc:
+        print(f"{r['regime']:>9} {r['every']:>9.0f}s {r['input']:>7.2f} {r['naive']:>7.2f} {r['gtsam']:>7.2f} "
+              f"{r['posefix']:>8.2f} {r['posefix'] / r['naive']:>9.2f} {r['posefix'] / r['gtsam']:>9.2f} "
+              f"{r['input'] / r['posefix']:>9.1f}")
+    print("   targets: vs naive <= 1, vs GTSAM <= 1, input/pf >= 4 where the pose keeps its shape")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes only (about a minute)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out", help="folder for the plot")
     ap.add_argument("--plot-only", action="store_true", help="only simulate the plotted drive and write the plot")
-    ap.add_argument("--only", choices=["edit"], help="run one section only: edit = 2. one more edit and live drag")
+    ap.add_argument("--only", choices=["batch", "edit", "accuracy"],
+                    help="run one section only: batch = 1., edit = 2. one more edit and live drag, accuracy = 4.")
     args = ap.parse_args(argv)
     if args.only == "edit":
         print("posefix engine benchmark, section 2 only")
@@ -453,18 +479,15 @@ def main(argv=None) -> None:
     sizes = [1000, 3600] if args.quick else [1000, 3600, 10_000, 100_000]
     spacings = [100.0] if args.quick else [30.0, 100.0, 300.0]
     duration = 900.0 if args.quick else 1800.0
+    if args.only == "batch":
+        print_batch_section(sizes)
+        return
+    if args.only == "accuracy":
+        print_accuracy_section(spacings, duration, args.out)
+        return
 
     print("posefix engine benchmark" + (" (quick)" if args.quick else ""))
-    print("\n1. Batch solve, same problem (mixed regime, 1 keyframe/s, 1 edit per 100 keyframes)")
-    print(f"{'keyframes':>10} {'posefix s':>10} {'it':>3} {'GTSAM LM s':>11} {'it':>3} {'ratio':>6} "
-          f"{'cost posefix':>14} {'cost GTSAM*':>14} {'rel diff':>9}  target")
-    for r in bench_batch(sizes):
-        ratio = r["t_pf"] / r["t_gt"]
-        rel = (r["c_gt"] - r["c_pf"]) / r["c_pf"]
-        target = "ratio<=0.5, |rel|<=1e-6" if r["k"] in (3600, 100_000) else ""
-        print(f"{r['k']:>10,} {r['t_pf']:>10.3f} {r['it_pf']:>3} {r['t_gt']:>11.3f} {r['it_gt']:>3} {ratio:>6.2f} "
-              f"{r['c_pf']:>14.6f} {r['c_gt']:>14.6f} {rel:>9.1e}  {target}", flush=True)
-    print("   * GTSAM's final poses scored with the posefix cost (GTSAM's own error: see README).")
+    print_batch_section(sizes)
 
     print_edit_section()
 
@@ -473,15 +496,7 @@ def main(argv=None) -> None:
     print(f"   {p['k']:,} keyframes -> {p['n']:,} samples: {p['t_prop'] * 1e3:.1f} ms (target <= 50 ms); "
           f"with frames and WGS84 output {p['t_full'] * 1e3:.1f} ms")
 
-    print(f"\n4. Accuracy vs truth, horizontal RMSE in metres ({duration:.0f} s drives at 10 Hz, default settings)")
-    print(f"{'regime':>9} {'edit every':>10} {'input':>7} {'naive':>7} {'GTSAM':>7} {'posefix':>8} "
-          f"{'vs naive':>9} {'vs GTSAM':>9} {'input/pf':>9}")
-    acc = bench_accuracy(spacings, list(REGIMES), duration, plot_dir=args.out)
-    for r in acc:
-        print(f"{r['regime']:>9} {r['every']:>9.0f}s {r['input']:>7.2f} {r['naive']:>7.2f} {r['gtsam']:>7.2f} "
-              f"{r['posefix']:>8.2f} {r['posefix'] / r['naive']:>9.2f} {r['posefix'] / r['gtsam']:>9.2f} "
-              f"{r['input'] / r['posefix']:>9.1f}")
-    print("   targets: vs naive <= 1, vs GTSAM <= 1, input/pf >= 4 where the pose keeps its shape")
+    print_accuracy_section(spacings, duration, args.out)
     png = args.out / "corrected_run.png"
     if png.exists():
         print(f"\nplot: {png}")
