@@ -177,21 +177,29 @@ def _reweight_relative_translation(terms: T.Terms, x_lin: np.ndarray, edges: np.
     Tt = rot.skew(b) @ rot.right_jacobian(theta)
     e = b - terms.rel_delta_m[i]
     P = -RT
-    PtT = np.swapaxes(P, 1, 2) @ Tt
     s = scale[:, None, None]
+    sPtT = s * (np.swapaxes(P, 1, 2) @ Tt)
     eye = s * np.eye(3)
-    D[i, :3, :3] += eye
-    D[i, :3, 3:] += s * PtT
-    D[i, 3:, :3] += s * np.swapaxes(PtT, 1, 2)
-    D[i, 3:, 3:] += s * (np.swapaxes(Tt, 1, 2) @ Tt)
-    D[i + 1, :3, :3] += eye
-    U[i, :3, :3] -= eye
-    U[i, 3:, :3] -= s * np.swapaxes(PtT, 1, 2)
+    # whole 6x6 blocks built by slices, then one scatter each (the edges are distinct)
+    Di = np.empty((len(i), 6, 6))
+    Di[:, :3, :3] = eye
+    Di[:, :3, 3:] = sPtT
+    Di[:, 3:, :3] = np.swapaxes(sPtT, 1, 2)
+    Di[:, 3:, 3:] = s * (np.swapaxes(Tt, 1, 2) @ Tt)
+    Dj = np.zeros((len(i), 6, 6))
+    Dj[:, :3, :3] = eye
+    Ui = np.zeros((len(i), 6, 6))
+    Ui[:, :3, :3] = -eye
+    Ui[:, 3:, :3] = -np.swapaxes(sPtT, 1, 2)
+    D[i] += Di
+    D[i + 1] += Dj
+    U[i] += Ui
     gs = g.reshape(-1, 6)
-    Pte = scale[:, None] * np.einsum("mri,mr->mi", P, e)
-    gs[i, :3] += Pte
-    gs[i + 1, :3] -= Pte
-    gs[i, 3:] += scale[:, None] * np.einsum("mri,mr->mi", Tt, e)
+    gi = np.empty((len(i), 6))
+    gi[:, :3] = scale[:, None] * np.einsum("mri,mr->mi", P, e)
+    gi[:, 3:] = scale[:, None] * np.einsum("mri,mr->mi", Tt, e)
+    gs[i] += gi
+    gs[i + 1, :3] -= gi[:, :3]
 
 
 def position_term_costs(terms: T.Terms, p_m: np.ndarray) -> dict[str, float]:
