@@ -314,3 +314,106 @@ class TestPreviewCache:
         a, b = np.array(frames[-1]["positions"]), np.array(cold["positions"])
         diff_m = correction.horizontal_distance_m(a[:, 0], a[:, 1], b[:, 0], b[:, 1]).max()
         assert diff_m < 0.05
+
+
+class TestStoredSolution:
+    """Each revision's solution is stored beside its files, so another API process (here: the
+    in-memory caches emptied) loads it instead of solving the revision again."""
+
+    def preview(self, client, users, rid, base, xy, k=30):
+        body = {"base_revision": base, "moves": [{"index": k, "lon": xy[k, 0] + 3 * METRE_LON, "lat": xy[k, 1]}]}
+        r = client.post(f"/api/v1/runs/{rid}/preview", json=body, headers=users["admin"])
+        assert r.status_code == 200, r.text
+        return r.json()
+
+    def test_revision_solution_written_by_worker_and_loaded_by_a_fresh_process(self, client, users, app, settings):
+        from posefix.runs import correction, storage
+        from posefix.runs.models import Revision
+
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["admin"], rid)
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": [
+            {"index": 20, "lon": xy[20, 0] + 4 * METRE_LON, "lat": xy[20, 1]}]}, headers=users["admin"])
+        assert wait_job(app, r.json()["job_id"])["status"] == "succeeded"
+        with app.state.db.transaction(write=False) as s:
+            rev = s.query(Revision).filter_by(run_id=rid, number=1).one()
+            kf_file = rev.keyframes_file
+        assert (settings.files_dir / storage.solution_rel(kf_file)).is_file()
+        _, xy1 = kf_coords(client, users["admin"], rid, revision=1)
+        warm = self.preview(client, users, rid, 1, xy1)
+        correction.PROBLEMS.forget_all()  # as in another API process
+        fresh = self.preview(client, users, rid, 1, xy1)
+        assert fresh["preview"]["base_solved_in_request"] is False
+        assert np.abs(np.array(fresh["positions"]) - np.array(warm["positions"])).max() < 1e-7
+
+    def test_first_solve_of_a_revision_is_stored_for_the_others(self, client, users, settings):
+        from posefix.runs import correction
+
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["client"], rid)  # a client's view does not pre-solve
+        first = self.preview(client, users, rid, 0, xy)
+        assert first["preview"]["base_solved_in_request"] is True
+        assert len(list((settings.files_dir / "runs" / str(rid)).glob("r0-*.solution.npz"))) == 1
+        correction.PROBLEMS.forget_all()
+        again = self.preview(client, users, rid, 0, xy)
+        assert again["preview"]["base_solved_in_request"] is False
+        assert np.abs(np.array(again["positions"]) - np.array(first["positions"])).max() < 1e-7
+
+    def test_solution_of_another_configuration_is_not_used(self, tmp_path):
+        from posefix.engine import CorrectionConfig, prepare
+        from posefix.io import read_run
+        from posefix.runs import correction, storage
+
+        path = tmp_path / "drive.csv"
+        path.write_bytes(drive_csv(300))
+        problem = prepare(read_run(path), CorrectionConfig())
+        sol = correction.solve(problem, correction.EMPTY_EDIT_SET)
+        fs = storage.FileStore(tmp_path / "files")
+        storage.write_solution(fs, "runs/1/r0-x.solution.npz", sol, "config-a")
+        back = storage.read_solution(fs, "runs/1/r0-x.solution.npz", "config-a")
+        assert np.array_equal(back.x, sol.x) and np.array_equal(back.keyframes.p_enu_m, sol.keyframes.p_enu_m)
+        assert back.terms is not None and np.array_equal(back.terms.rel_delta_m, sol.terms.rel_delta_m)
+        assert storage.read_solution(fs, "runs/1/r0-x.solution.npz", "config-b") is None
+        assert storage.read_solution(fs, "runs/1/none.solution.npz", "config-a") is None
+        fs.put_bytes(b"not an npz", "runs/1/r0-y.solution.npz")
+        assert storage.read_solution(fs, "runs/1/r0-y.solution.npz", "config-a") is None
+
+
+class TestPreviewWritesNothing:
+    def test_preview_answers_while_another_transaction_holds_the_write_lock(self, client, users, app):
+        """A preview reads only: on SQLite it used to take the database's write lock (a POST's
+        session), so it waited behind every writer, up to the 30 s busy timeout."""
+        import threading
+        import time
+
+        from sqlalchemy import text
+
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["admin"], rid)
+        body = {"base_revision": 0, "moves": [{"index": 30, "lon": xy[30, 0] + 3 * METRE_LON, "lat": xy[30, 1]}]}
+        assert client.post(f"/api/v1/runs/{rid}/preview", json=body, headers=users["admin"]).status_code == 200
+        held, release = threading.Event(), threading.Event()
+
+        def hold_write_lock():
+            # SQLite: BEGIN IMMEDIATE (the database's one write lock); PostgreSQL: every table a
+            # preview reads, locked against any writer
+            with app.state.db.engine.connect().execution_options(sqlite_begin="IMMEDIATE") as conn:
+                with conn.begin():
+                    if not app.state.db.is_sqlite:
+                        conn.execute(text("LOCK TABLE runs, revisions, keyframes, users, auth_sessions, api_tokens "
+                                          "IN SHARE ROW EXCLUSIVE MODE"))
+                    held.set()
+                    release.wait(20)
+
+        holder = threading.Thread(target=hold_write_lock)
+        holder.start()
+        try:
+            assert held.wait(10)
+            started = time.monotonic()
+            r = client.post(f"/api/v1/runs/{rid}/preview", json=body, headers=users["admin"])
+            elapsed = time.monotonic() - started
+        finally:
+            release.set()
+            holder.join(30)
+        assert r.status_code == 200, r.text
+        assert elapsed < 5.0, f"the preview waited {elapsed:.1f} s for the write lock"

@@ -180,6 +180,64 @@ class TestKeyframes:
         assert fc["line"]["type"] == "LineString" and len(fc["line"]["coordinates"]) == 600
         assert fc["rules"]["every_n"] >= 1
 
+    def test_etag_revalidation_and_gzip(self, client, users):
+        rid = upload(client, users["admin"]).json()["id"]
+        url = f"/api/v1/runs/{rid}/keyframes"
+        gz = client.get(url, headers={**users["admin"], "Accept-Encoding": "gzip"})
+        assert gz.status_code == 200 and gz.headers["content-encoding"] == "gzip"
+        assert gz.headers["cache-control"] == "private, no-cache" and gz.headers["vary"] == "Accept-Encoding"
+        etag_gz = gz.headers["etag"]
+        assert etag_gz.startswith('"') and etag_gz.endswith('-gz"')
+        plain = client.get(url, headers={**users["admin"], "Accept-Encoding": "identity"})
+        assert "content-encoding" not in plain.headers and plain.content == gz.content  # httpx decoded the gzip
+        assert plain.headers["etag"] == etag_gz[:-4] + '"' and len(plain.content) > 3 * int(gz.headers["content-length"])
+        for tag in (etag_gz, plain.headers["etag"], f'W/{etag_gz}, "other"'):
+            again = client.get(url, headers={**users["admin"], "If-None-Match": tag, "Accept-Encoding": "gzip"})
+            assert again.status_code == 304 and again.content == b"" and again.headers["etag"] == etag_gz
+        assert client.get(url, headers={**users["admin"], "If-None-Match": '"stale"'}).status_code == 200
+        # someone else's tag does not reveal the run: access is checked first
+        other = upload(client, users["client"]).json()["id"]
+        hidden = client.get(f"/api/v1/runs/{other}/keyframes", headers={**users["client"], "If-None-Match": etag_gz})
+        assert hidden.status_code == 200  # another run, another tag
+        assert client.get(f"/api/v1/runs/{rid}/keyframes", headers={**users["client"], "If-None-Match": etag_gz}).status_code == 404
+        # a new head revision changes the content, so the old tag no longer matches
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [3]}, headers=users["admin"])
+        assert r.status_code == 202
+        changed = client.get(url, headers={**users["admin"], "If-None-Match": etag_gz, "Accept-Encoding": "gzip"})
+        assert changed.status_code == 200 and changed.headers["etag"] != etag_gz and changed.json()["head_revision"] == 1
+
+    def test_rendered_once_for_concurrent_readers(self, client, users, app, monkeypatch):
+        import threading
+        import time
+
+        from posefix.runs import service
+        from posefix.runs.models import Run
+
+        rid = upload(client, users["admin"]).json()["id"]
+        renders = []
+        real = service._render_geojson
+
+        def slow_render(*args):
+            renders.append(1)
+            time.sleep(0.2)  # long enough for every reader to arrive meanwhile
+            return real(*args)
+
+        monkeypatch.setattr(service, "_render_geojson", slow_render)
+        service.GEOJSON_CACHE.clear()
+        results = []
+
+        def read():
+            with app.state.db.transaction(write=False) as s:
+                results.append(service.keyframes_geojson(s, app.state.settings, s.get(Run, rid), None))
+
+        threads = [threading.Thread(target=read) for _ in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30)
+        assert len(renders) == 1 and len(results) == 8 and all(r is results[0] for r in results)
+        assert json.loads(results[0].body)["run_id"] == rid
+
     def test_unknown_revision(self, client, users):
         rid = upload(client, users["client"]).json()["id"]
         r = client.get(f"/api/v1/runs/{rid}/keyframes?revision=5", headers=users["client"])
