@@ -253,7 +253,7 @@ class Problem:
             self._static.clear()
             self._local_to_anchor.clear()
         self._static[key] = terms
-        self._static[b"plausible" + key] = delta
+        self._static[("plausible", key)] = delta
         return terms
 
     def _gnss_steps(self, rows: np.ndarray, t_s: np.ndarray, p_rep: np.ndarray, g: np.ndarray) -> GnssSteps:
@@ -265,7 +265,7 @@ class Problem:
 
     def _shape_evidence(self, rows: np.ndarray, t_s: np.ndarray, static: T.Terms, g: np.ndarray) -> np.ndarray:
         """Where the reported pose's error most likely changed, per step (cached: the run only)."""
-        key = b"evidence" + rows.tobytes()
+        key = ("evidence", self._rows_key(rows))
         if key not in self._static:
             rc = self.cfg.relative
             p = static.p_rep_m
@@ -344,7 +344,7 @@ class Problem:
         lc, uc = cfg.location, cfg.user
         warm_sol = None if warm_start is None else (
             warm_start.solution if isinstance(warm_start, Correction) else warm_start)
-        same_rows = warm_sol is not None and np.array_equal(warm_sol.keyframes.index[warm_sol.active], act_rows)
+        same_rows = warm_sol is not None and _same_rows(warm_sol, act_rows)
         frozen = None
         if local and same_rows and warm_sol.drift.tau_s > 0:
             frozen = (warm_sol.drift.sigma_b_m**2, warm_sol.drift.tau_s, warm_sol.drift.detected)
@@ -384,7 +384,7 @@ class Problem:
             user_idx=e_act, user_c_m=c, user_w=1.0 / user_sigma, rel_w_t=rel_w_t,
             # with edits, the relative terms measure the reported steps without the sideways motion
             # a vehicle cannot make; without any, the run stays exactly as reported
-            rel_delta_m=self._static[b"plausible" + act_rows.tobytes()] if len(e_act) else static.rel_delta_m,
+            rel_delta_m=self._static[("plausible", self._rows_key(act_rows))] if len(e_act) else static.rel_delta_m,
         )
         x0 = self._warm_state(act_rows, p_rep, warm_start)
         result = None
@@ -404,7 +404,7 @@ class Problem:
                 lin = None
         q_rep = self._reported_unit_quat(act_rows)
         window = result.extra.get("window_held")
-        if window is not None and np.array_equal(warm_sol.keyframes.index, index) \
+        if window is not None and _same_array(warm_sol.keyframes.index, index) \
                 and np.array_equal(warm_sol.active, active):
             # a local solve moved only keyframes lo..hi: start from the previous answer
             lo, hi = window
@@ -423,9 +423,13 @@ class Problem:
             p_all[active], q_all[active] = p_sol, q_sol
         edited = np.zeros(k, dtype=bool)
         edited[edit_kf] = True
+        if warm_sol is not None and warm_sol.keyframes.index is index:  # the same keyframes: share what is read only
+            t_kf, p_rep_kf = warm_sol.keyframes.t_s, warm_sol.keyframes.reported_p_enu_m
+        else:
+            t_kf, p_rep_kf = self.run.t_s[index], self.p_enu_m[index]
         kfs = KeyframeSet(
-            index=index, t_s=self.run.t_s[index], p_enu_m=p_all, q_wxyz=q_all,
-            reported_p_enu_m=self.p_enu_m[index], reported_q_wxyz=self.anchored_quat(index),
+            index=index, t_s=t_kf, p_enu_m=p_all, q_wxyz=q_all,
+            reported_p_enu_m=p_rep_kf, reported_q_wxyz=self.anchored_quat(index),
             edited=edited, deleted=deleted,
         )
         return Solution(kfs, result, drift, x, active, list(flags or []), terms, lin)
@@ -544,12 +548,12 @@ class Problem:
         index = self.keyframes_for(np.concatenate([rows_m, rows_d]))
         edit_kf = np.searchsorted(index, rows_m)
         deleted_kf = np.searchsorted(index, rows_d)
+        # one pass over the moves: (lon, lat, alt or NaN) per move
+        lla = np.array([(m.lon_deg, m.lat_deg, np.nan if m.alt_m is None else m.alt_m) for m in edits.moves],
+                       dtype=float).reshape(-1, 3)
         has_alt = np.array([m.alt_m is not None for m in edits.moves], dtype=bool)
-        alt = np.array([m.alt_m if m.alt_m is not None else self.run.alt_m[r] for m, r in zip(edits.moves, rows_m)])
-        c_m = (
-            self.to_enu([m.lon_deg for m in edits.moves], [m.lat_deg for m in edits.moves], alt)
-            if len(rows_m) else np.zeros((0, 3))
-        )
+        alt = np.where(has_alt, lla[:, 2], self.run.alt_m[rows_m])
+        c_m = geodesy.geodetic_to_enu(lla[:, 1], lla[:, 0], alt, self.origin) if len(rows_m) else np.zeros((0, 3))
         return index, edit_kf, c_m, has_alt, deleted_kf
 
     def _check_rules(self, index, edit_kf, c_m, deleted_kf) -> list[Refusal]:
@@ -658,6 +662,17 @@ def _reweighted_keyframes(new: T.Terms, old: T.Terms, tol_rel: float) -> np.ndar
     if new.grav_w is not old.grav_w:
         out |= np.abs(new.grav_w - old.grav_w) > tol_rel * np.abs(old.grav_w)
     return out
+
+
+def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
+    return a is b or (a.shape == b.shape and bool(np.array_equal(a, b)))
+
+
+def _same_rows(sol: Solution, act_rows: np.ndarray) -> bool:
+    """Whether a solution was solved on these (active) keyframe rows."""
+    if sol.keyframes.index is act_rows and bool(sol.active.all()):  # the default keyframes, none removed
+        return True
+    return bool(np.array_equal(sol.keyframes.index[sol.active], act_rows))
 
 
 def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:
