@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import LinAlgError, get_lapack_funcs, solveh_banded
 
-from posefix.core import rotations as rot
 from posefix.core import terms as T
 
 BAND_U = 11  # super-diagonals of a block-tridiagonal matrix with 6x6 blocks
@@ -79,8 +78,11 @@ class Linearisation:
     (its error is of order (d theta)^2); ``solve_local_newton`` checks that.
 
     x_lin (6k,) state it was built at; ab (12, 6k) J^T J in LAPACK's upper band form
-    (``pack_banded``, Fortran order); g (6k,) J^T r at x_lin; cost_rt, cost_rr (k-1,), cost_g (k,) each term's cost 1/2 |r|^2 at x_lin per
-    edge / keyframe; rel_w_t, rel_w_r (k-1,), grav_w (k,) the weights it was built with;
+    (``pack_banded``, Fortran order); g (6k,) J^T r at x_lin; cost_rt, cost_rr (k-1,),
+    cost_g (k,) each term's cost 1/2 |r|^2 at x_lin per edge / keyframe; rt_PtT, rt_TtT
+    (k-1,3,3), rt_Pte, rt_Tte (k-1,3) the relative-translation terms' blocks at unit weight
+    (see ``_reweight_relative_translation``); rel_w_t, rel_w_r (k-1,), grav_w (k,) the
+    weights it was built with;
     R_rep, rel_delta_m the reported poses' arrays it was built on (to tell its keyframes).
     Read only: shared by every solution warm-started from it.
     """
@@ -91,6 +93,10 @@ class Linearisation:
     cost_rt: np.ndarray
     cost_rr: np.ndarray
     cost_g: np.ndarray
+    rt_PtT: np.ndarray
+    rt_TtT: np.ndarray
+    rt_Pte: np.ndarray
+    rt_Tte: np.ndarray
     rel_w_t: np.ndarray
     rel_w_r: np.ndarray
     grav_w: np.ndarray
@@ -112,7 +118,8 @@ class Linearisation:
         """The model on keyframes lo..hi (views).  The end blocks still hold the terms linking
         lo - 1 and hi + 1: right only where those keyframes are held."""
         return WindowModel(self.x_lin[6 * lo:6 * hi + 6], self.ab[:, 6 * lo:6 * hi + 6],
-                           self.g[6 * lo:6 * hi + 6], self.rel_w_t[lo:hi])
+                           self.g[6 * lo:6 * hi + 6], self.rel_w_t[lo:hi], self.rt_PtT[lo:hi], self.rt_TtT[lo:hi],
+                           self.rt_Pte[lo:hi], self.rt_Tte[lo:hi])
 
     def window_costs(self, lo: int, hi: int, rel_w_t: np.ndarray | None = None) -> dict[str, float]:
         """Costs at x_lin of the relative and gravity terms touching only keyframes lo..hi;
@@ -130,13 +137,17 @@ class Linearisation:
 
 @dataclass(frozen=True)
 class WindowModel:
-    """``Linearisation`` on a window: x_lin (6n,), ab (12, 6n), g (6n,), and the
-    relative-translation weights (n-1,) it was built with."""
+    """``Linearisation`` on a window: x_lin (6n,), ab (12, 6n), g (6n,), the
+    relative-translation weights (n-1,) it was built with and those terms' unit-weight blocks."""
 
     x_lin: np.ndarray
     ab: np.ndarray
     g: np.ndarray
     rel_w_t: np.ndarray
+    rt_PtT: np.ndarray
+    rt_TtT: np.ndarray
+    rt_Pte: np.ndarray
+    rt_Tte: np.ndarray
 
 
 def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
@@ -152,40 +163,40 @@ def linearise_fixed_terms(terms: T.Terms, ev: T.Evaluation) -> Linearisation:
     ab = np.asfortranarray(pack_banded(D, U))
     x_lin = np.concatenate([ev.cache["p"], ev.cache["theta"]], axis=1).ravel()
     costs = [0.5 * np.einsum("ij,ij->i", r, r) for r in (ev.rt_r, ev.rr_r, ev.grav_r)]
-    for arr in (x_lin, ab, g, *costs):
+    # the relative-translation blocks of terms.normal_equations divided by their weight squared
+    P, Tt, w2 = ev.jac["rt_pi"], ev.jac["rt_ti"], terms.rel_w_t**2
+    Pt = np.swapaxes(P, 1, 2)
+    unit = [(Pt @ Tt) / w2[:, None, None], (np.swapaxes(Tt, 1, 2) @ Tt) / w2[:, None, None],
+            np.einsum("mri,mr->mi", P, ev.rt_r) / w2[:, None], np.einsum("mri,mr->mi", Tt, ev.rt_r) / w2[:, None]]
+    for arr in (x_lin, ab, g, *costs, *unit):
         arr.flags.writeable = False
-    return Linearisation(x_lin, ab, g, *costs, terms.rel_w_t, terms.rel_w_r, terms.grav_w, terms.R_rep,
+    return Linearisation(x_lin, ab, g, *costs, *unit, terms.rel_w_t, terms.rel_w_r, terms.grav_w, terms.R_rep,
                          terms.rel_delta_m)
 
 
-def _reweight_relative_translation(terms: T.Terms, x_lin: np.ndarray, edges: np.ndarray, scale: np.ndarray,
+def _reweight_relative_translation(lin: "WindowModel", edges: np.ndarray, scale: np.ndarray,
                                    D: np.ndarray, U: np.ndarray, g: np.ndarray) -> None:
     """Add ``scale`` (m,) times the unit-weight Gauss-Newton blocks of the relative-translation
-    terms on ``edges`` (m,) at ``x_lin`` to D, U, g (in place).
+    terms on ``edges`` (m,) (window numbering; D, U, g numbered from the first edge's keyframe)
+    to D, U, g in place.
 
     With ``e = R_i^T (p_j - p_i) - D_ij`` the unit-weight Jacobian rows are ``[P, T, -P, 0]``
     over (p_i, theta_i, p_j, theta_j), ``P = -R_i^T``, ``T = [R_i^T (p_j - p_i)]x Jr(theta_i)``
-    (as in ``terms.normal_equations``); a term of weight w contributes w^2 times them, so a
-    change of weight from w to w' adds (w'^2 - w^2) times them.
+    (as in ``terms.normal_equations``): blocks ``I`` (p_i p_i, p_j p_j), ``P^T T`` (p_i theta_i),
+    ``T^T T`` (theta_i theta_i), ``-I`` (p_i p_j), ``-T^T P`` (theta_i p_j), gradient ``P^T e``,
+    ``T^T e``, ``-P^T e``; the model kept them at x_lin.  A term of weight w contributes w^2
+    times them, so a change of weight from w to w' adds (w'^2 - w^2) times them.
     """
-    xs = x_lin.reshape(-1, 6)
-    i = edges
-    theta = xs[i, 3:]
-    R = terms.R_rep[i] @ rot.quat_to_matrix(rot.exp_quat(theta))
-    RT = np.swapaxes(R, 1, 2)
-    b = np.einsum("kij,kj->ki", RT, xs[i + 1, :3] - xs[i, :3])
-    Tt = rot.skew(b) @ rot.right_jacobian(theta)
-    e = b - terms.rel_delta_m[i]
-    P = -RT
+    i = edges - edges[0]
     s = scale[:, None, None]
-    sPtT = s * (np.swapaxes(P, 1, 2) @ Tt)
+    sPtT = s * lin.rt_PtT[edges]
     eye = s * np.eye(3)
     # whole 6x6 blocks built by slices, then one scatter each (the edges are distinct)
     Di = np.empty((len(i), 6, 6))
     Di[:, :3, :3] = eye
     Di[:, :3, 3:] = sPtT
     Di[:, 3:, :3] = np.swapaxes(sPtT, 1, 2)
-    Di[:, 3:, 3:] = s * (np.swapaxes(Tt, 1, 2) @ Tt)
+    Di[:, 3:, 3:] = s * lin.rt_TtT[edges]
     Dj = np.zeros((len(i), 6, 6))
     Dj[:, :3, :3] = eye
     Ui = np.zeros((len(i), 6, 6))
@@ -196,8 +207,8 @@ def _reweight_relative_translation(terms: T.Terms, x_lin: np.ndarray, edges: np.
     U[i] += Ui
     gs = g.reshape(-1, 6)
     gi = np.empty((len(i), 6))
-    gi[:, :3] = scale[:, None] * np.einsum("mri,mr->mi", P, e)
-    gi[:, 3:] = scale[:, None] * np.einsum("mri,mr->mi", Tt, e)
+    gi[:, :3] = scale[:, None] * lin.rt_Pte[edges]
+    gi[:, 3:] = scale[:, None] * lin.rt_Tte[edges]
     gs[i] += gi
     gs[i + 1, :3] -= gi[:, :3]
 
@@ -376,9 +387,7 @@ def _model_from_linearisation(terms: T.Terms, lin: WindowModel) -> tuple[np.ndar
             m = e1 - e0 + 2
             dD, dU = np.zeros((m, 6, 6)), np.zeros((m - 1, 6, 6))
             dg = np.zeros(6 * m)
-            sub = dataclasses.replace(terms, R_rep=terms.R_rep[e0:e1 + 2], rel_delta_m=terms.rel_delta_m[e0:e1 + 1])
-            _reweight_relative_translation(sub, x_lin[6 * e0:6 * e1 + 12], edges - e0,
-                                           terms.rel_w_t[edges] ** 2 - lin.rel_w_t[edges] ** 2, dD, dU, dg)
+            _reweight_relative_translation(lin, edges, terms.rel_w_t[edges] ** 2 - lin.rel_w_t[edges] ** 2, dD, dU, dg)
             ab[:, 6 * e0:6 * e1 + 12] += pack_banded(dD, dU)
             g[6 * e0:6 * e1 + 12] += dg
     ui = terms.user_idx
