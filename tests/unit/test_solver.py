@@ -199,3 +199,16 @@ def test_a_held_keyframe_moved_since_the_linearisation_still_pulls_its_neighbour
     # without the held keyframe's pull on its neighbour they differ by 1.4 mm
     assert np.max(np.abs((x_kept - x_fresh).reshape(-1, 6)[:, :3])) < 2e-4
     assert np.allclose(x_kept.reshape(-1, 6)[0], x0.reshape(-1, 6)[0])  # held
+
+
+def test_chord_steps_land_where_newton_steps_do(monkeypatch):
+    terms = random_terms(k=300, n_user=6, seed=7)
+    x_star, r = S.solve_banded(terms, linearise=True)
+    more = _one_more_edit(terms, x_star, shift=(6.0, -4.0, 0.0))
+    sub, fixed = _window(more, 80, 220)
+    x0 = x_star.reshape(-1, 6)[80:221].ravel()
+    x_chord, r_chord = S.solve_local_newton(sub, x0, fixed, linearisation=r.extra["linearisation"].window(80, 220))
+    monkeypatch.setattr(S, "CHORD_AFTER_STEPS", 0.0)  # every step a Newton step
+    x_newton, r_newton = S.solve_local_newton(sub, x0, fixed, linearisation=r.extra["linearisation"].window(80, 220))
+    assert np.max(np.abs((x_chord - x_newton).reshape(-1, 6)[:, :3])) < 1e-3
+    assert r_chord.cost == pytest.approx(r_newton.cost, rel=1e-7)
