@@ -70,15 +70,15 @@ def gaussian_summary(p_xy_m: np.ndarray, logp: np.ndarray, min_sigma_m: float = 
         p, lp = p_xy_m[sel], logp[sel]
     else:  # most vertices live (unknown start): weigh them all rather than copy a subset
         p, lp = p_xy_m, logp
-    w = np.exp(lp - top)
+    # Entries below the cut weigh 0, as in the subset branch (and no subnormal floats).
+    w = np.exp(np.where(lp > top - cut_nats, lp - top, NEG_INF))
     w /= w.sum()
     mean = w @ p
-    # Second moments about the mean, one (n, 2) pass: Σ = Σ_i w_i (p_i - μ)(p_i - μ)ᵀ.
+    # Σ = Σ_i w_i (p_i - μ)(p_i - μ)ᵀ as one (2, n) x (n, 2) product. (Not as dot products of
+    # the strided columns: OpenBLAS threads a ddot of over 10 000 elements, and on a busy
+    # machine waking the threads cost 10-20 ms a call.)
     d = p - mean
-    wd = d * w[:, None]
-    cov = np.array([[wd[:, 0] @ d[:, 0], wd[:, 0] @ d[:, 1]], [0.0, wd[:, 1] @ d[:, 1]]])
-    cov[1, 0] = cov[0, 1]
-    cov += np.eye(2) * min_sigma_m**2
+    cov = (d * w[:, None]).T @ d + np.eye(2) * min_sigma_m**2
     evals, evecs = np.linalg.eigh(cov)
     major = evecs[:, 1]
     return GaussianSummary(mean_xy_m=mean, cov_m2=cov,
@@ -214,7 +214,8 @@ class ForwardFilter:
         # the best underflow to 0: far outside any beam.
         top, t_top = float(np.max(self.alpha)), float(np.max(trans_k))
         a = np.concatenate([np.exp(self.alpha - top), [0.0]])
-        e = np.exp(np.asarray(trans_k, dtype=float) - t_top)
+        tk = np.asarray(trans_k, dtype=float) - t_top
+        e = np.exp(np.where(tk > -300.0, tk, NEG_INF))  # no subnormal products (see gaussian_summary)
         acc = a[pred_t[0]] * e[0]
         for k in range(1, pred_t.shape[0]):
             acc += a[pred_t[k]] * e[k]
