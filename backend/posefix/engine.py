@@ -33,6 +33,7 @@ from posefix.core.drift import (
     edit_bends,
     estimate_drift,
     gnss_steps,
+    gnss_transient,
     no_drift,
     shape_change_evidence,
     step_window,
@@ -263,8 +264,10 @@ class Problem:
             self._static[key] = gnss_steps((g - p_rep)[:, :2], window=step_window(t_s))
         return self._static[key]
 
-    def _shape_evidence(self, rows: np.ndarray, t_s: np.ndarray, static: T.Terms, g: np.ndarray) -> np.ndarray:
-        """Where the reported pose's error most likely changed, per step (cached: the run only)."""
+    def _shape_evidence(self, rows: np.ndarray, t_s: np.ndarray, static: T.Terms,
+                        g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the reported pose's error most likely changed, per step (k-1,), and the GNSS
+        transient statistic per keyframe (k,) (cached: they depend on the run only)."""
         key = ("evidence", self._rows_key(rows))
         if key not in self._static:
             rc = self.cfg.relative
@@ -273,7 +276,8 @@ class Problem:
             side = T.sideways_steps(delta, static.rel_dR)[2]
             dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 1.0
             n_short, n_long = (max(int(round(w / max(dt, 1e-9))), 1) for w in (rc.transient_short_s, rc.transient_long_s))
-            self._static[key] = shape_change_evidence((g - p)[:, :2], np.hypot(side[:, 0], side[:, 1]), n_short, n_long)
+            transient = gnss_transient((g - p)[:, :2], n_short, n_long)
+            self._static[key] = (shape_change_evidence(transient, np.hypot(side[:, 0], side[:, 1])), transient)
         return self._static[key]
 
     def _location_measurements(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -365,9 +369,10 @@ class Problem:
         if cfg.relative.edit_bend_chi2 > 0 and len(e_act) > 1:
             # edits the reported shape cannot join loosen the relative terms between them where
             # the pose was most likely dragged, and the fixes that dragged it drop out (drift.edit_bends)
-            extra_rel, dragged = edit_bends(p_rep, 1.0 / static.rel_w_t**2,
-                                            self._shape_evidence(act_rows, t_act, static, g_nan), e_act, edit_c_m,
-                                            uc.sigma_h_m, cfg.relative.edit_bend_chi2, g_nan, lc.sigma_h_m)
+            evidence, transient = self._shape_evidence(act_rows, t_act, static, g_nan)
+            extra_rel, dragged = edit_bends(p_rep, 1.0 / static.rel_w_t**2, evidence, e_act, edit_c_m,
+                                            uc.sigma_h_m, cfg.relative.edit_bend_chi2, g_nan, lc.sigma_h_m,
+                                            transient=transient)
             if np.any(extra_rel > 0):
                 rel_w_t = 1.0 / np.sqrt(1.0 / static.rel_w_t**2 + extra_rel)
         sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[loc_idx] ** 2)

@@ -150,20 +150,41 @@ def test_edits_the_shape_cannot_join_bend_the_run_where_the_evidence_is():
 
 
 def test_shape_change_evidence_peaks_at_a_gnss_transient_and_at_sideways_motion():
-    from posefix.core.drift import shape_change_evidence
+    from posefix.core.drift import gnss_transient, shape_change_evidence
 
     k = 300
     rng = np.random.default_rng(3)
     u = rng.normal(0, 2.5, (k, 2))
     u[150:170, 0] += 15.0 * np.exp(-np.arange(20) / 8.0)  # the fix jumped, the pose follows it
+    u[60:63] += [50.0, -50.0]  # a 3 s burst of outliers is no transient
     side = np.full(k - 1, 0.05)
     side[40] = 2.0
-    ev = shape_change_evidence(u, side, 5, 61)
-    assert 148 <= int(np.argmax(ev[100:200])) + 100 <= 160
+    tr = gnss_transient(u, 5, 61)
+    assert tr[150:160].max() > 13.8 and tr[55:70].max() < 13.8
+    ev = shape_change_evidence(tr, side)
+    assert 145 <= int(np.argmax(ev[100:200])) + 100 <= 160
     assert int(np.argmax(ev[:100])) == 40
-    u[:] = np.nan  # no GNSS at all: the sideways motion alone
-    ev = shape_change_evidence(u, side, 5, 61)
-    assert int(np.argmax(ev)) == 40 and np.all(np.isfinite(ev))
+    tr0 = gnss_transient(np.zeros((k, 2)), 5, 61)  # no separate GNSS: the sideways motion alone
+    ev = shape_change_evidence(tr0, side)
+    assert not tr0.any() and int(np.argmax(ev)) == 40 and np.all(np.isfinite(ev))
+
+
+def test_a_pose_that_wandered_under_good_gnss_is_left_to_the_location_terms():
+    from posefix.core.drift import edit_bends
+
+    k = 101
+    p = np.stack([10.0 * np.arange(k), np.zeros(k), np.zeros(k)], 1)
+    rng = np.random.default_rng(4)
+    truth = p.copy()
+    truth[:, 1] += np.linspace(0.0, 12.0, k)  # the pose's error grew by 12 m over the interval
+    g = truth + np.c_[rng.normal(0, 2.5, (k, 2)), np.zeros(k)]  # the fix stayed on the truth
+    edits = np.array([0, 100])
+    var = np.full(k - 1, 0.04)
+    extra_rel, dragged = edit_bends(p, var, np.ones(k - 1), edits, truth[edits], 0.5, g_m=g, sigma_w_m=3.0)
+    assert not extra_rel.any() and not dragged.any()
+    # the same edits over a fix that followed the pose: dragged
+    extra_rel, dragged = edit_bends(p, var, np.ones(k - 1), edits, truth[edits], 0.5, g_m=p.copy(), sigma_w_m=3.0)
+    assert extra_rel.sum() > 0 and dragged[1:100].all()
 
 
 def _canyon_drive(every_s, seed=5, regime="canyon"):
