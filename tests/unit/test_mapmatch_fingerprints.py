@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from posefix.mapmatch.fingerprints import FingerprintMap, build_fingerprints, fit_access_points
+from posefix.mapmatch.fingerprints import (FingerprintMap, build_fingerprints, fit_access_points, load_fingerprints,
+                                           save_fingerprints)
 from posefix.mapmatch.sensors import Walk, WalkFormatError, read_walk, wifi_scans
 
 APS = np.array([[5.0, 5.0], [35.0, 5.0], [20.0, 25.0], [5.0, 25.0], [35.0, 25.0]])
@@ -158,3 +159,15 @@ def test_covariance_is_calibrated_on_the_survey():
     # Held-out walks leave whole rows out, so the survey calibration errs a little wide.
     assert 0.4 * chi2_median < np.median(m2) < 1.2 * chi2_median
     assert 0.0 <= fp.outlier_frac < 0.2
+    # k-NN: the scale grows with how badly the scan matches its best fingerprint.
+    assert fp.scale_by_match is not None and np.all(np.diff(fp.scale_by_match) >= 0.0)
+    assert fp.scale_for(0.0) == fp.scale_by_match[0] and fp.scale_for(1e3) == fp.scale_by_match[-1]
+
+
+def test_fingerprint_file_keeps_the_calibration(tmp_path):
+    walks = survey_walks(np.random.default_rng(4), noise_db=8.0)
+    fp = build_fingerprints(walks, sigma0_m=0.3)
+    save_fingerprints(fp, tmp_path / "fp.npz")
+    back = load_fingerprints(tmp_path / "fp.npz")
+    assert back.cov_scale == fp.cov_scale and back.outlier_frac == fp.outlier_frac
+    assert np.allclose(back.scale_match_db, fp.scale_match_db) and np.allclose(back.scale_by_match, fp.scale_by_match)

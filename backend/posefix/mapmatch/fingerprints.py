@@ -74,6 +74,8 @@ class FingerprintMap:
     similarity: str = "scan"  # k-NN signal distance (signal_distances_db)
     cov_scale: float = 1.0  # Σ multiplier, calibrated on the survey (calibrate_covariance)
     outlier_frac: float = 0.0  # ε of f3's robust form, calibrated with cov_scale
+    scale_match_db: np.ndarray | None = None  # k-NN: Σ scale as a function of the best match's
+    scale_by_match: np.ndarray | None = None  # RMS dB distance (calibrate_covariance); None: cov_scale
     robust: bool = False  # track with f3's robust form (off: measured worse on site1, see docs)
     walk_id: np.ndarray | None = None  # (N,) which survey walk each fingerprint came from
 
@@ -126,8 +128,15 @@ class FingerprintMap:
         p = self.p_xy_m[nn]
         mu = w @ p
         dp = p - mu
-        cov = ((dp * w[:, None]).T @ dp + np.eye(2) * self.sigma0_m**2) * self.cov_scale
-        return mu, cov, float(d[nn].min())
+        d_best = float(d[nn].min())
+        cov = ((dp * w[:, None]).T @ dp + np.eye(2) * self.sigma0_m**2) * self.scale_for(d_best)
+        return mu, cov, d_best
+
+    def scale_for(self, d_best_db: float) -> float:
+        """The k-NN covariance scale for a scan whose best match is ``d_best_db`` (RMS dB)."""
+        if self.scale_match_db is None or self.scale_by_match is None:
+            return self.cov_scale
+        return float(np.interp(d_best_db, self.scale_match_db, self.scale_by_match))
 
     def signal_distances_db(self, v: np.ndarray) -> np.ndarray:
         """RMS RSSI difference (N,) dB between a scan vector ``v`` (A,) and every fingerprint.
@@ -267,7 +276,7 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
                         vertices_xy_m=vertices_xy_m, max_age_ms=max_age_ms, scan_time=scan_time,
                         walk_id=np.asarray(wid, dtype=np.int32), **options)
     if calibrate:
-        fp.cov_scale, fp.outlier_frac = calibrate_covariance(fp)
+        fp.cov_scale, fp.outlier_frac, fp.scale_match_db, fp.scale_by_match = calibrate_covariance(fp)
     return fp
 
 
@@ -275,25 +284,34 @@ CHI2_2_MEDIAN = 2.0 * np.log(2.0)  # median of a χ² with 2 degrees of freedom
 CHI2_2_Q99 = -2.0 * np.log(0.01)  # its 99 % point (9.21)
 
 
-def calibrate_covariance(fp: FingerprintMap, folds: int = 5,
-                         vertices_xy_m: np.ndarray | None = None) -> tuple[float, float]:
+def calibrate_covariance(fp: FingerprintMap, folds: int = 5, vertices_xy_m: np.ndarray | None = None,
+                         bins: int = 4) -> tuple[float, float, np.ndarray | None, np.ndarray | None]:
     """Σ scale that makes the predictions' Mahalanobis distances honest on the survey itself.
 
     The survey walks are split into ``folds`` groups (by ``fp.walk_id``); each group's scans
     are predicted from a map of the other groups, and ``s = median(m²) / median(χ²₂)`` with
-    ``m² = (p - μ)ᵀ Σ⁻¹ (p - μ)`` for the scan's surveyed position p. Returns s (1.0 when the
-    survey has fewer than two walks or no held-out prediction). The median, not the mean:
-    the errors are heavy-tailed (a scan now and then matches the wrong wing), and the
-    Gaussian should describe the bulk. Returns ``(s, ε)``: ε the outlier rate, the fraction
-    of held-out scans beyond the scaled Gaussian's 99 % ellipse less the 1 % it expects
-    there (f3's robust form, :func:`posefix.mapmatch.features.f_robust_position`).
+    ``m² = (p - μ)ᵀ Σ⁻¹ (p - μ)`` for the scan's surveyed position p (never below 1). The
+    median, not the mean: the errors are heavy-tailed (a scan now and then matches the
+    wrong wing), and the Gaussian should describe the bulk.
+
+    k-NN errors grow with how badly the scan matches its best fingerprint (d_min, RMS dB:
+    a scan far from any survey point matches none well; on site1/F1 the held-out median
+    error is 5.5 m in the best-matching quarter and 25 m in the worst). So for ``knn`` the
+    scale is also fitted per ``bins`` quantile bins of d_min, made non-decreasing, and
+    interpolated in d_min between the bins' medians (:meth:`FingerprintMap.scale_for`).
+
+    Returns ``(s, ε, d_db, s_by_d)``: ε the outlier rate, the fraction of held-out scans
+    beyond the scaled Gaussian's 99 % ellipse less the 1 % it expects there (f3's robust
+    form, :func:`posefix.mapmatch.features.f_robust_position`); ``d_db``/``s_by_d`` the
+    per-bin table, or None (fewer than 10 predictions a bin, or not k-NN). Without two
+    survey walks or any held-out prediction: ``(1, 0, None, None)``.
     """
     if fp.walk_id is None or np.unique(fp.walk_id).size < 2:
-        return 1.0, 0.0
+        return 1.0, 0.0, None, None
     ids = np.unique(fp.walk_id)
     group = {w: i % folds for i, w in enumerate(ids)}
     g = np.array([group[w] for w in fp.walk_id.tolist()])
-    m2 = []
+    m2, dmin = [], []
     for k in np.unique(g):
         tr, te = g != k, g == k
         sub = FingerprintMap(bssids=fp.bssids, p_xy_m=fp.p_xy_m[tr], rssi_dbm=fp.rssi_dbm[tr], k=fp.k,
@@ -303,16 +321,30 @@ def calibrate_covariance(fp: FingerprintMap, folds: int = 5,
                              knn_max_db=fp.knn_max_db, similarity=fp.similarity)
         for p, r in zip(fp.p_xy_m[te], fp.rssi_dbm[te]):
             scan = {b: float(x) for b, x in zip(fp.bssids.tolist(), r.tolist()) if x > MISSING_DBM}
-            pred = sub.predict(scan)
+            if fp.method == "knn":
+                pred = sub._predict_knn(scan)
+            else:
+                pred = sub.predict(scan)
             if pred is not None:
                 d = p - pred[0]
                 m2.append(float(d @ np.linalg.solve(pred[1], d)))
+                dmin.append(pred[2] if fp.method == "knn" else np.nan)
     if not m2:
-        return 1.0, 0.0
-    scale = max(1.0, float(np.median(m2)) / CHI2_2_MEDIAN)
+        return 1.0, 0.0, None, None
+    m2a, da = np.asarray(m2), np.asarray(dmin)
+    scale = max(1.0, float(np.median(m2a)) / CHI2_2_MEDIAN)
+    d_db = s_by_d = None
+    per_scan = np.full(m2a.size, scale)
+    if fp.method == "knn" and m2a.size >= 10 * bins:
+        edges = np.quantile(da, np.linspace(0.0, 1.0, bins + 1))
+        which = np.clip(np.searchsorted(edges, da, side="right") - 1, 0, bins - 1)
+        d_db = np.array([np.median(da[which == b]) for b in range(bins)])
+        s_by_d = np.maximum.accumulate(
+            np.array([max(1.0, float(np.median(m2a[which == b])) / CHI2_2_MEDIAN) for b in range(bins)]))
+        per_scan = np.interp(da, d_db, s_by_d)
     # Beyond the χ²₂ 99 % point a Gaussian leaves 1 %; the excess is the outlier rate.
-    outlier = float(np.mean(np.asarray(m2) / scale > CHI2_2_Q99)) - 0.01
-    return scale, float(np.clip(outlier, 0.0, 0.5))
+    outlier = float(np.mean(m2a / per_scan > CHI2_2_Q99)) - 0.01
+    return scale, float(np.clip(outlier, 0.0, 0.5)), d_db, s_by_d
 
 
 def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
@@ -320,7 +352,9 @@ def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
     with open(path, "wb") as fh:
         np.savez_compressed(fh, format=np.array("posefix-fingerprints"), version=np.array(2, dtype=np.int32),
                             bssids=fp.bssids.astype(str), p_xy_m=fp.p_xy_m, rssi_dbm=fp.rssi_dbm,
-                            cov_scale=np.array(fp.cov_scale), outlier_frac=np.array(fp.outlier_frac))
+                            cov_scale=np.array(fp.cov_scale), outlier_frac=np.array(fp.outlier_frac),
+                            scale_match_db=np.asarray(fp.scale_match_db if fp.scale_match_db is not None else [], float),
+                            scale_by_match=np.asarray(fp.scale_by_match if fp.scale_by_match is not None else [], float))
     return Path(path).stat().st_size
 
 
@@ -335,5 +369,10 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
         # Version 1 files have no calibration: Σ as predicted (scale 1), no outliers.
         scale = float(z["cov_scale"]) if "cov_scale" in z.files else 1.0
         eps = float(z["outlier_frac"]) if "outlier_frac" in z.files else 0.0
+        table = {}
+        if "scale_match_db" in z.files and z["scale_match_db"].size:
+            if z["scale_match_db"].shape != z["scale_by_match"].shape:
+                raise ValueError(f"{path}:0: field scale_by_match: shape differs from scale_match_db")
+            table = dict(scale_match_db=z["scale_match_db"], scale_by_match=z["scale_by_match"])
         return FingerprintMap(bssids=z["bssids"], p_xy_m=z["p_xy_m"], rssi_dbm=z["rssi_dbm"], method=method,
-                              cov_scale=scale, outlier_frac=eps)
+                              cov_scale=scale, outlier_frac=eps, **table)
