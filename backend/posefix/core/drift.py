@@ -349,8 +349,16 @@ def steps_confirmed_by_edits(steps: GnssSteps, edit_kf: np.ndarray, d_h: np.ndar
     keep = np.zeros(len(steps.index), dtype=bool)
     jumps = steps.jump_m.copy()
     # stretches: before the first edit, between consecutive edits, after the last one
-    bounds = [(-1, edit_kf[0], None)] + [(a, b, db - da) for a, b, da, db in
-                                         zip(edit_kf[:-1], edit_kf[1:], d_h[:-1], d_h[1:])] + [(edit_kf[-1], k, None)]
+    if np.all(edit_kf[1:] > edit_kf[:-1]):
+        # only the stretches holding a step (a handful among dozens) need a look: same result,
+        # without numpy work on every stretch (a one-more-edit solve runs this on every call)
+        ends = np.append(edit_kf, k)
+        held = np.unique(np.searchsorted(ends, steps.index, side="left")).tolist()
+        bounds = [(-1 if s == 0 else edit_kf[s - 1], ends[s], None if s in (0, len(edit_kf)) else d_h[s] - d_h[s - 1])
+                  for s in held]
+    else:
+        bounds = [(-1, edit_kf[0], None)] + [(a, b, db - da) for a, b, da, db in
+                                             zip(edit_kf[:-1], edit_kf[1:], d_h[:-1], d_h[1:])] + [(edit_kf[-1], k, None)]
     for a, b, change in bounds:
         inside = (steps.index > a) & (steps.index <= b)
         n = int(inside.sum())
