@@ -237,12 +237,16 @@ def bias_at(kf_t_s, t_e, mean, var, sigma2: float, tau_s: float, q_jump=None):
 
     mu = np.zeros((len(t),) + cols)
     v = np.full(len(t), sigma2)
-    before, after = t < t_e[0], t > t_e[-1]
+    if np.all(t[1:] >= t[:-1]):  # keyframe times (sorted): each part is a slice, no boolean masks to build
+        n0, n1 = np.searchsorted(t, t_e[0], side="left"), np.searchsorted(t, t_e[-1], side="right")
+        before, after, inside = slice(0, n0), slice(n1, len(t)), slice(n0, n1)
+    else:
+        before, after = t < t_e[0], t > t_e[-1]
+        inside = ~(before | after)
     for sel, t_end, x_end, p_end in ((before, t_e[0], mean[0], var[0]), (after, t_e[-1], mean[-1], var[-1])):
         c = np.exp(-np.abs(t[sel] - t_end) / tau_s)
         mu[sel] = col(c) * x_end
         v[sel] = sigma2 * (1.0 - c * c) + c * c * p_end
-    inside = ~(before | after)
     if len(t_e) == 1:
         mu[inside], v[inside] = mean[0], var[0]
         return mu, v
