@@ -48,20 +48,28 @@ class TestPreview:
         assert body["refusals"] == [] and body["solver"]["status"] == "converged"
         assert body["time_ms"] < 2000
 
-    def test_preview_of_a_revision_is_local_not_a_full_solve(self, client, users):
+    def test_preview_of_a_revision_is_local_not_a_full_solve(self, client, users, app):
         import time
 
         from posefix.runs import correction
 
         rid = new_run(client, users, n=10000)  # 1,001 keyframes: the window around a drag is under half
-        fc, xy = kf_coords(client, users["admin"], rid)  # opening the revision solves it in the background
+        _, xy0 = kf_coords(client, users["admin"], rid)
+        # An edited revision: the engine measures an edited run's relative terms on its plausible
+        # steps (an unedited run keeps them as reported), so the very first edit of a run changes
+        # terms along the whole run and is solved in full; every later drag is local.
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": [
+            {"index": 990, "lon": xy0[990, 0] + 2 * METRE_LON, "lat": xy0[990, 1]}]}, headers=users["admin"])
+        assert wait_job(app, r.json()["job_id"])["status"] == "succeeded"
+        fc, xy = kf_coords(client, users["admin"], rid)  # opening the revision loads its solution in the background
+        assert fc["revision"] == 1
         deadline = time.monotonic() + 60
-        while correction.PROBLEMS.solution(rid, fc["rules"], 0) is None:
+        while correction.PROBLEMS.solution(rid, fc["rules"], 1) is None:
             assert time.monotonic() < deadline
             time.sleep(0.05)
-        for k in (500, 150, 850):  # each the first edit of the revision: drift would reach the whole run
+        for k in (500, 150, 850):  # each the first new edit of the revision: drift would reach the whole run
             target = [xy[k, 0] + 5 * METRE_LON, xy[k, 1]]
-            body = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [{"index": k, "lon": target[0], "lat": target[1]}]},
+            body = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 1, "moves": [{"index": k, "lon": target[0], "lat": target[1]}]},
                                headers=users["admin"]).json()
             info = body["preview"]
             assert info["mode"] == "local" and info["full_solve"] is False and info["base_solved_in_request"] is False, info
