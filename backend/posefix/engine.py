@@ -375,10 +375,11 @@ class Problem:
                                             transient=transient)
             if np.any(extra_rel > 0):
                 rel_w_t = 1.0 / np.sqrt(1.0 / static.rel_w_t**2 + extra_rel)
-        sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[loc_idx] ** 2)
+        at = slice(None) if len(loc_idx) == len(act_rows) else loc_idx  # every keyframe located: no gathers
+        sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[at] ** 2)
         loc_sigma = np.stack([sigma_h, sigma_h, np.full(len(loc_idx), lc.sigma_v_m)], axis=1)
-        loc_sigma[dragged[loc_idx]] = np.inf  # weight 0: kept in place so local solves see the same located set
-        loc_g = g[loc_idx] - drift.bias_enu_m[loc_idx]
+        loc_sigma[dragged[at]] = np.inf  # weight 0: kept in place so local solves see the same located set
+        loc_g = g[at] - drift.bias_enu_m[at]
         user_sigma = np.tile([uc.sigma_h_m, uc.sigma_h_m, uc.sigma_v_m], (len(e_act), 1))
         user_sigma[~edit_has_alt, 2] = np.inf
         c = edit_c_m.copy()
