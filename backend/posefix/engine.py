@@ -54,7 +54,8 @@ from posefix.core.solver import (
 LOCAL_MARGIN = 30  # keyframes re-optimised beyond those whose terms changed (local solves) ...
 LOCAL_EDGE_M = 0.01  # ... and more (x3 each time) while the keyframes next to the held ones move more than this
 # A full solve keeps the model of its edit-independent terms for the next local solve up to this
-# many keyframes (72 doubles each: 2 MB at 3,600); beyond, a local solve linearises its window
+# many keyframes (about 105 doubles each: 3 MB at 3,600, 17 MB at 20,000; kept with the solution,
+# and in the server's stored solution files); beyond, a local solve linearises its window
 LINEARISE_MAX_KEYFRAMES = 20_000
 
 __all__ = [
