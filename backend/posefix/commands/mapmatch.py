@@ -116,7 +116,8 @@ def fingerprints(
             size = save_fingerprints(fp, tmp)
         typer.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points "
                    f"({fp.n_fitted_aps} with a fitted position), {len(fp.peak_xy_m)} peaks; "
-                   f"{size / 1024:.1f} KiB -> {output}")
+                   f"covariance scale {fp.cov_scale:.2f} (held-out calibration), outlier rate "
+                   f"{fp.outlier_frac:.2f}; {size / 1024:.1f} KiB -> {output}")
 
 
 @mm.command("train")

@@ -6,7 +6,7 @@ them) are matched by :func:`posefix.mapmatch.suggest_for_run` in a worker job
 busy machine), half of it reading the extract and building the drivable raster and graph.
 Those are now cached in the worker's memory (:func:`posefix.mapmatch.suggest.drivable_area`,
 keyed by the extract's hash and the snapped box), so a repeated suggestion (a new revision,
-another operator) takes about 1 s; the first one about 3.5 s. A finished job for the same
+another operator) takes about 1.1 s; the first one about 3.8 s. A finished job for the same
 run, revision and cell size is reused.
 An accepted suggestion is submitted through the normal edits path as a move of kind
 ``suggestion``; see docs/maps-api.md for how it is weighted.
