@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import LinAlgError, get_lapack_funcs, solveh_banded
+from scipy.linalg import LinAlgError, get_blas_funcs, get_lapack_funcs, solveh_banded
 
 from posefix.core import terms as T
 
@@ -342,12 +342,6 @@ def solve_banded(
 
 
 @functools.cache
-def _lapack_pbsv():
-    """LAPACK's banded Cholesky solve (double precision), looked up once."""
-    return get_lapack_funcs(("pbsv",), (np.zeros(1),))[0]
-
-
-@functools.cache
 def _lapack_pbtrf_pbtrs():
     """LAPACK's banded Cholesky factorisation and solve with a factor (double precision)."""
     return get_lapack_funcs(("pbtrf", "pbtrs"), (np.zeros(1),))
@@ -368,21 +362,6 @@ def solve_with_factor(c: np.ndarray, b: np.ndarray) -> np.ndarray:
     x, info = _lapack_pbtrf_pbtrs()[1](c, b, lower=0)
     if info < 0:
         raise ValueError(f"illegal value in argument {-info} of pbtrs")
-    return x
-
-
-def solve_banded_spd(ab: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve A x = b, A symmetric positive definite in upper band form ab (12, 6k); overwrites ab.
-
-    What ``scipy.linalg.solveh_banded`` does, without its per-call validation and LAPACK
-    look-up (a large part of a local Newton step on a few hundred keyframes).  ``ab`` in
-    Fortran order avoids a copy inside the call.
-    """
-    _, x, info = _lapack_pbsv()(ab, b, lower=0, overwrite_ab=1, overwrite_b=1)
-    if info > 0:
-        raise LinAlgError(f"{info}th leading minor not positive definite")
-    if info < 0:
-        raise ValueError(f"illegal value in argument {-info} of pbsv")
     return x
 
 
@@ -426,8 +405,6 @@ def _model_from_linearisation(terms: T.Terms, lin: WindowModel) -> tuple[np.ndar
 @functools.cache
 def _blas_sbmv():
     """BLAS symmetric band matrix-vector product (double precision), looked up once."""
-    from scipy.linalg import get_blas_funcs
-
     return get_blas_funcs(("sbmv",), (np.zeros(1),))[0]
 
 
