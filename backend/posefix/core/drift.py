@@ -27,9 +27,15 @@ neighbouring keyframes (the reported pose keeps its local shape, so g - p~ varie
    sigma inflated to ``sqrt(sigma_w^2 + var_b,i)``: where edits show drift the term is
    down-weighted (between edits, where the bias is uncertain) and no longer biased, so
    hundreds of weak, correlated fixes cannot pull the run back onto a biased track.  With
-   no drift detected (offsets within 3 sigma of the noise of edits and fixes) the term is
-   left exactly as it was; far from any edit the model returns to the unbiased prior, so
-   the pull of one edit fades with distance.
+   no drift detected (median offset within 3 sigma of the noise of edits and fixes, no
+   wander beyond it, and all offsets together within the 99 % point of their chi-square)
+   the term is left exactly as it was; far from any edit the model returns to the unbiased
+   prior, so the pull of one edit fades with distance.
+4. Edits the reported shape cannot join (``edit_bends``): where two consecutive edits move
+   the run by more than its relative terms allow and the GNSS shows why (the fix jumped, or
+   left its level in between: ``gnss_transient``), the relative variance of that interval is
+   raised to what the edits show, placed where the error most likely changed
+   (``shape_change_evidence``), and the fixes inside are dropped.
 
 Vertical: only 3-D edits observe the vertical bias; without them the vertical is left alone.
 """
@@ -478,7 +484,7 @@ def estimate_drift(
     # edits of more than twice the offsets' noise (the pooled estimate of q is rough), or all
     # the offsets together beyond the 99 % point of the chi-square they would follow (a few
     # edits that agree on one offset: their median is a poor estimate, their sum is not).
-    from scipy.special import chdtri  # already loaded with scipy.optimize; scipy.stats costs ~0.4 s of import
+    from scipy.special import chdtri  # ~35 ms of import, once (scipy.ndimage loads it too); scipy.stats: ~0.4 s
 
     typical_dt = float(np.median(np.diff(t_e))) if len(t_e) > 1 else float(kf_t_s[-1] - kf_t_s[0])
     median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise_h[0] / len(t_e))
@@ -554,7 +560,7 @@ def gnss_transient(u_h: np.ndarray, short: int, long: int) -> np.ndarray:
     still catching up, for at least ``short`` keyframes in a row.  Zero for a run without
     separate GNSS (u = 0).
     """
-    from scipy.ndimage import median_filter
+    from scipy.ndimage import median_filter, minimum_filter1d
 
     k = len(u_h)
     if k < 2:
@@ -569,8 +575,6 @@ def gnss_transient(u_h: np.ndarray, short: int, long: int) -> np.ndarray:
         return np.zeros(k)
     # a transient lasts: a burst of outliers long enough to carry one median (3 in 5) does not
     # (kept only where ``short`` keyframes in a row stand out)
-    from scipy.ndimage import minimum_filter1d
-
     return minimum_filter1d(np.sum(dev**2 / var_dev, axis=1), short, mode="nearest")
 
 
