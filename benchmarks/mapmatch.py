@@ -199,6 +199,7 @@ def wifi_alone(fp, walk) -> tuple[np.ndarray, np.ndarray]:
     """Errors (m) of the fingerprint map's position for each scan of ``walk`` within its
     waypoint span (truth: the straight line between waypoints at the scan's time), and the
     truth's distance to the nearest survey position."""
+    from posefix.mapmatch.evaluate import interpolate_xy
     from posefix.mapmatch.sensors import wifi_scans
 
     wp = walk.waypoints
@@ -209,7 +210,7 @@ def wifi_alone(fp, walk) -> tuple[np.ndarray, np.ndarray]:
         r = fp.predict(scan)
         if r is None:
             continue
-        q = np.array([np.interp(t_ms, wp[:, 0], wp[:, 1]), np.interp(t_ms, wp[:, 0], wp[:, 2])])
+        q = interpolate_xy(t_ms, wp[:, 0], wp[:, 1:3])[0]
         err.append(float(np.linalg.norm(r[0] - q)))
         truth.append(q)
     if not err:
