@@ -1,6 +1,6 @@
 """Correction engine benchmark: posefix vs GTSAM 4.3 vs the naive baseline.
 
-    python -m benchmarks.engine [--quick] [--out benchmarks/out] [--only edit]
+    python -m benchmarks.engine [--quick] [--out benchmarks/out] [--only batch|edit|accuracy]
 
 Every comparison runs on the same simulated problems (``posefix.core.simulate``):
 
