@@ -13,7 +13,12 @@ Two paths reach the same minimum:
 * ``solve_scipy`` (reference path): ``scipy.optimize.least_squares`` (trust region
   reflective) with the analytic sparse Jacobian.
 
-Both return the solution and a ``SolverResult``.
+Both return the solution and a ``SolverResult``.  For one more edit on a solved run,
+``solve_local_newton`` takes Newton steps on a window of keyframes from the warm start with
+only the robust location term re-modelled at each step; the other terms' model is the
+``Linearisation`` that ``solve_banded(..., linearise=True)`` kept at its answer (the
+relative and gravity terms depend on the keyframes, not on the edits), or is built at the
+warm start when there is none.
 """
 
 from __future__ import annotations
