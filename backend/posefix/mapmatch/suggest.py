@@ -76,11 +76,15 @@ def snap_bbox(bbox: tuple[float, float, float, float], snap_deg: float = BBOX_SN
             float(np.ceil(hi_lo / snap_deg) * snap_deg), float(np.ceil(hi_la / snap_deg) * snap_deg))
 
 
+class NoWaysError(ValueError):
+    """No way of the profile in the box (a ValueError naming the file, as every bad input)."""
+
+
 def drivable_area(osm_path: str | Path, bbox: tuple[float, float, float, float], cell_m: float = 2.0,
                   profile: str = "drive"):
     """(raster, graph) of the ``profile`` ways in ``bbox`` (snapped outwards), cached (module docstring).
 
-    Raises ValueError naming the file when no way of the profile is in the box.
+    Raises :class:`NoWaysError` naming the file when no way of the profile is in the box.
     """
     box = snap_bbox(bbox)
     key = (file_sha256(osm_path), box, float(cell_m), profile)
@@ -92,7 +96,7 @@ def drivable_area(osm_path: str | Path, bbox: tuple[float, float, float, float],
             return hit
     ways = read_osm_ways(osm_path, box, profile=profile)
     if not ways:
-        raise ValueError(f"{osm_path}:0: field highway: no {profile} ways near the run")
+        raise NoWaysError(f"{osm_path}:0: field highway: no {profile} ways near the run")
     raster = raster_from_ways(ways, box, res_m=min(0.5, cell_m / 4.0))
     graph = build_graph(raster, cell_m=cell_m, reach_m=1.5 * cell_m, min_component_m2=25.0 * cell_m**2)
     with _lock:
@@ -158,10 +162,8 @@ def suggest_for_run(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz
         raise FloorFormatError(str(osm_path), 0, "file", "no such OSM extract")
     try:
         raster, graph = drivable_area(osm_path, bbox, cell_m=cell_m, profile=profile)
-    except ValueError as exc:
-        if "no " + profile + " ways" in str(exc):
-            raise ValueError(f"{osm_path}:0: field highway: no {profile} ways within {margin_m} m of the run") from None
-        raise
+    except NoWaysError:
+        raise ValueError(f"{osm_path}:0: field highway: no {profile} ways within {margin_m} m of the run") from None
     geo = raster.georef
     p_rep = geo.to_xy(ll)
 
