@@ -316,6 +316,7 @@ class Problem:
         flags: list[Refusal] | None = None,
         local: bool = False,
         drift: DriftEstimate | None = None,
+        plausible_steps: bool = False,
     ) -> Solution:
         """Optimise keyframes ``index`` with edits given as keyframe numbers and ENU targets.
 
@@ -326,6 +327,8 @@ class Problem:
         negligible).  Without ``local`` the full problem is solved (from the warm start).
         ``drift`` (on the active keyframes) replaces the drift estimate: a live-drag preview
         keeps the base solution's, so a drag changes the terms only at the dragged keyframes.
+        ``plausible_steps``: measure the relative terms on the plausible steps even without
+        edits (as every solve with edits does; see ``drag_base``).
         """
         cfg = self.cfg
         k = len(index)
@@ -391,8 +394,15 @@ class Problem:
             user_idx=e_act, user_c_m=c, user_w=1.0 / user_sigma, rel_w_t=rel_w_t,
             # with edits, the relative terms measure the reported steps without the sideways motion
             # a vehicle cannot make; without any, the run stays exactly as reported
-            rel_delta_m=self._static[("plausible", self._rows_key(act_rows))] if len(e_act) else static.rel_delta_m,
+            rel_delta_m=(self._static[("plausible", self._rows_key(act_rows))] if len(e_act) or plausible_steps
+                         else static.rel_delta_m),
         )
+        if local and same_rows and len(e_act) and warm_sol.terms is not None \
+                and not warm_sol.keyframes.edited.any() and not _same_array(warm_sol.terms.rel_delta_m, terms.rel_delta_m):
+            # an unedited warm start measured the steps as reported; these edits switch every
+            # implausible step along the run to its plausible form: start from that problem's
+            # solution (solved once, cached) so only the edits' neighbourhood changes
+            warm_sol = warm_start = self.drag_base(warm_sol)
         x0 = self._warm_state(act_rows, p_rep, warm_start)
         result = None
         lin = None
@@ -440,6 +450,29 @@ class Problem:
             edited=edited, deleted=deleted,
         )
         return Solution(kfs, result, drift, x, active, list(flags or []), terms, lin)
+
+    def drag_base(self, sol: Solution) -> Solution:
+        """The solution a local solve with edits starts from: ``sol`` itself, or, when ``sol`` is
+        unedited and the run has steps a vehicle cannot make (``terms.vehicle_motion``), the
+        same unedited problem with its relative terms on the plausible steps, as any edit
+        measures them.  Solved once per ``sol`` (a full solve) and cached: a server warms it
+        with the revision so the first drag of an unedited run stays a local solve.
+        """
+        if sol.terms is None or sol.keyframes.edited.any():
+            return sol
+        act_rows = sol.keyframes.index if sol.active.all() else sol.keyframes.index[sol.active]
+        self._static_terms(act_rows)
+        if _same_array(self._static[("plausible", self._rows_key(act_rows))], sol.terms.rel_delta_m):
+            return sol  # every step plausible (or already measured so)
+        key = ("drag_base", self._rows_key(act_rows))
+        cached = self._static.get(key)
+        if cached is None or cached[0] is not sol:
+            none3 = np.zeros((0, 3))
+            base = self.solve_rows(sol.keyframes.index, np.zeros(0, np.int64), none3, np.zeros(0, bool),
+                                   np.flatnonzero(sol.keyframes.deleted), warm_start=sol, flags=sol.flags,
+                                   plausible_steps=True)
+            cached = self._static[key] = (sol, base)
+        return cached[1]
 
     def _solve_window(self, terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: SolverResult,
                       lin: Linearisation | None = None):

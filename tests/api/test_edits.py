@@ -81,6 +81,28 @@ class TestPreview:
             far = [i for i in range(1001) if i < a or i > b]
             assert np.abs(pos[far] - xy[far]).max() < 1e-7  # outside the window: the base solution as served
 
+    def test_the_first_drag_of_an_unedited_revision_is_local(self, client, users):
+        import time
+
+        from posefix.runs import correction
+
+        rid = new_run(client, users, n=10000)
+        fc, xy = kf_coords(client, users["admin"], rid)  # opening revision 0 warms its solution and drag base
+        deadline = time.monotonic() + 60
+        while correction.PROBLEMS.solution(rid, fc["rules"], 0) is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        for k in (500, 150):
+            target = [xy[k, 0] + 5 * METRE_LON, xy[k, 1]]
+            body = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [{"index": k, "lon": target[0], "lat": target[1]}]},
+                               headers=users["admin"]).json()
+            info = body["preview"]
+            assert info["mode"] == "local" and info["full_solve"] is False, info
+            a, b = info["window"]
+            assert a <= k <= b and b - a + 1 < 1001 / 2
+            pos = np.array(body["positions"])
+            assert 3.0 < (pos[k, 0] - xy[k, 0]) / METRE_LON <= 5.01
+
     def test_preview_with_deletions_after_the_revision_is_solved(self, client, users):
         import time
 

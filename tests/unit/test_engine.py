@@ -263,3 +263,32 @@ def test_one_more_edit_reuses_the_full_solves_linearisation_and_lands_where_a_fr
     assert "window" in nxt.solver.method
     assert np.max(np.abs(nxt.keyframes.p_enu_m - nxt_fresh.keyframes.p_enu_m)) < 1e-3
     assert nxt.solver.cost == pytest.approx(nxt_fresh.solver.cost, rel=1e-6)
+
+
+def test_the_first_edit_of_an_unedited_run_with_sideways_jumps_is_a_local_solve():
+    # canyon: the reported pose inherits GNSS jumps, so some steps slide sideways faster than a
+    # car can; any edit measures those steps without the slide along the whole run
+    sim = simulate(duration_s=1999.0, rate_hz=1.0, edit_every_s=100.0, seed=4, regime="canyon")
+    problem = prepare(sim.run)
+    base = problem.solve(None)
+    plausible = problem.drag_base(base)
+    assert plausible is not base and not np.array_equal(plausible.terms.rel_delta_m, base.terms.rel_delta_m)
+    assert problem.drag_base(base) is plausible  # solved once
+    # the location terms kept as in the base (a server's preview tapers the new drift estimate
+    # away from the drag): what changes along the run is only how the steps are measured
+    edits = EditSet(moves=[Move(e.t_s, e.lat_deg, e.lon_deg, None) for e in sim.edits[9:10]])
+    index, edit_kf, c_m, has_alt, deleted_kf = problem._resolve_edit_set(edits)
+    local = problem.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, warm_start=base, local=True,
+                               drift=base.drift)
+    full = problem.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, drift=base.drift)
+    window = local.solver.extra.get("window")
+    assert window is not None and window[1] - window[0] < 1000, local.solver.method
+    gap = np.hypot(*(local.keyframes.p_enu_m - full.keyframes.p_enu_m)[:, :2].T)
+    near = np.abs(np.arange(len(gap)) - edit_kf[0]) <= 100
+    # a live drag's answer: centimetres from the exact one (the commit solves it exactly)
+    assert np.max(gap[near]) < 0.05 and np.max(gap) < 0.1, (np.max(gap[near]), np.max(gap))
+    # a run whose steps are all plausible starts from its own solution
+    run, _ = hand_run(k=301)
+    easy = prepare(run)
+    sol = easy.solve(None)
+    assert easy.drag_base(sol) is sol

@@ -136,7 +136,8 @@ def prewarm(db: Any, settings: Settings, run_id: int, revision: int) -> None:
             problem = load_problem(session, settings, run)
             rules = dict(run.rules)
             stored = stored_solution(settings, run, keyframes_file)
-        correction.base_solution(run_id, rules, revision, problem, base, stored)
+        sol = correction.base_solution(run_id, rules, revision, problem, base, stored)
+        problem.drag_base(sol)  # an unedited run with implausible steps: the first drag's start (engine.drag_base)
 
     correction.warm_once(run_id, revision, work)
 
