@@ -494,7 +494,6 @@ class Problem:
         changed = T.changed_keyframes(terms, old, tol_m=0.01, tol_rel=0.01)
         if changed is None:
             return None, None
-        changed |= _reweighted_keyframes(terms, old, tol_rel=0.01)
         k = terms.n_keyframes
         hit = np.flatnonzero(changed)
         started = time.perf_counter()
@@ -688,20 +687,6 @@ def _window_costs_before(old_sub: T.Terms, new_sub: T.Terms, x_sub0: np.ndarray,
     if not same:
         return T.evaluate(old_sub, x_sub0, with_jac=False).costs()
     return {**new_before, **position_term_costs(old_sub, x_sub0.reshape(-1, 6)[:, :3])}
-
-
-def _reweighted_keyframes(new: T.Terms, old: T.Terms, tol_rel: float) -> np.ndarray:
-    """(k,) bool: keyframes of relative terms (both ends) or gravity terms whose weight differs
-    by more than ``tol_rel`` between two problems on the same keyframes (edit-dependent weights)."""
-    out = np.zeros(new.n_keyframes, dtype=bool)
-    for w_new, w_old in ((new.rel_w_t, old.rel_w_t), (new.rel_w_r, old.rel_w_r)):
-        if w_new is not w_old:
-            e = np.flatnonzero(np.abs(w_new - w_old) > tol_rel * np.abs(w_old))
-            out[e] = True
-            out[e + 1] = True
-    if new.grav_w is not old.grav_w:
-        out |= np.abs(new.grav_w - old.grav_w) > tol_rel * np.abs(old.grav_w)
-    return out
 
 
 def _same_array(a: np.ndarray, b: np.ndarray) -> bool:

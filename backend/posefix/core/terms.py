@@ -199,8 +199,9 @@ def window_terms(terms: Terms, a: int, b: int) -> Terms:
 
 
 def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: float = 1e-3) -> np.ndarray | None:
-    """(k,) bool: keyframes whose location, user or relative-translation terms differ between
-    two problems on the same keyframes (None when they cannot be compared: other keyframes or located set)."""
+    """(k,) bool: keyframes whose location or user terms differ between two problems on the
+    same keyframes, or whose relative or gravity terms were re-weighted (by more than ``tol_rel``)
+    (None when they cannot be compared: other keyframes, located set or reported steps)."""
     k = new.n_keyframes
     if old.n_keyframes != k or not np.array_equal(new.loc_idx, old.loc_idx):
         return None
@@ -211,10 +212,13 @@ def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: floa
     rew = np.any(np.abs(new.loc_w - old.loc_w) > tol_rel * np.abs(old.loc_w), axis=1)
     out[new.loc_idx[moved | rew]] = True
     # relative terms re-weighted (edits the reported shape cannot join loosen them): both ends
-    if len(new.rel_w_t) == len(old.rel_w_t) and new.rel_w_t is not old.rel_w_t:
-        rel = np.flatnonzero(np.abs(new.rel_w_t - old.rel_w_t) > tol_rel * np.abs(old.rel_w_t))
-        out[rel] = True
-        out[rel + 1] = True
+    for w_new, w_old in ((new.rel_w_t, old.rel_w_t), (new.rel_w_r, old.rel_w_r)):
+        if w_new is not w_old:
+            rel = np.flatnonzero(np.abs(w_new - w_old) > tol_rel * np.abs(w_old))
+            out[rel] = True
+            out[rel + 1] = True
+    if new.grav_w is not old.grav_w:
+        out |= np.abs(new.grav_w - old.grav_w) > tol_rel * np.abs(old.grav_w)
     # user terms: an edit added or removed, or moved / re-weighted (vectorised over the edits)
     both = np.intersect1d(new.user_idx, old.user_idx)
     out[np.setxor1d(new.user_idx, old.user_idx)] = True
