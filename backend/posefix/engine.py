@@ -272,12 +272,10 @@ class Problem:
         key = ("evidence", self._rows_key(rows))
         if key not in self._static:
             rc = self.cfg.relative
-            p = static.p_rep_m
-            delta = np.einsum("kji,kj->ki", static.R_rep[:-1], np.diff(p, axis=0))
-            side = T.sideways_steps(delta, static.rel_dR)[2]
+            side = T.sideways_steps(static.rel_delta_m, static.rel_dR)[2]  # the reported steps
             dt = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 1.0
             n_short, n_long = (max(int(round(w / max(dt, 1e-9))), 1) for w in (rc.transient_short_s, rc.transient_long_s))
-            transient = gnss_transient((g - p)[:, :2], n_short, n_long)
+            transient = gnss_transient((g - static.p_rep_m)[:, :2], n_short, n_long)
             self._static[key] = (shape_change_evidence(transient, np.hypot(side[:, 0], side[:, 1])), transient)
         return self._static[key]
 
