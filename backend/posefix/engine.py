@@ -396,7 +396,7 @@ class Problem:
                          else static.rel_delta_m),
         )
         if local and same_rows and len(e_act) and warm_sol.terms is not None \
-                and not warm_sol.keyframes.edited.any() and not _same_array(warm_sol.terms.rel_delta_m, terms.rel_delta_m):
+                and not warm_sol.keyframes.edited.any() and not T.same_array(warm_sol.terms.rel_delta_m, terms.rel_delta_m):
             # an unedited warm start measured the steps as reported; these edits switch every
             # implausible step along the run to its plausible form: start from that problem's
             # solution (solved once, cached) so only the edits' neighbourhood changes
@@ -419,7 +419,7 @@ class Problem:
                 lin = None
         q_rep = self._reported_unit_quat(act_rows)
         window = result.extra.get("window_held")
-        if window is not None and _same_array(warm_sol.keyframes.index, index) \
+        if window is not None and T.same_array(warm_sol.keyframes.index, index) \
                 and np.array_equal(warm_sol.active, active):
             # a local solve moved only keyframes lo..hi: start from the previous answer
             lo, hi = window
@@ -460,7 +460,7 @@ class Problem:
             return sol
         act_rows = sol.keyframes.index if sol.active.all() else sol.keyframes.index[sol.active]
         self._static_terms(act_rows)
-        if _same_array(self._static[("plausible", self._rows_key(act_rows))], sol.terms.rel_delta_m):
+        if T.same_array(self._static[("plausible", self._rows_key(act_rows))], sol.terms.rel_delta_m):
             return sol  # every step plausible (or already measured so)
         key = ("drag_base", self._rows_key(act_rows))
         cached = self._static.get(key)
@@ -680,15 +680,11 @@ def _window_costs_before(old_sub: T.Terms, new_sub: T.Terms, x_sub0: np.ndarray,
     start, ``new_before``, unless the edits changed their weights in the window (then all
     are evaluated).
     """
-    same = all(a is b or np.array_equal(a, b) for a, b in (
+    same = all(T.same_array(a, b) for a, b in (
         (old_sub.rel_w_t, new_sub.rel_w_t), (old_sub.rel_w_r, new_sub.rel_w_r), (old_sub.grav_w, new_sub.grav_w)))
     if not same:
         return T.evaluate(old_sub, x_sub0, with_jac=False).costs()
     return {**new_before, **position_term_costs(old_sub, x_sub0.reshape(-1, 6)[:, :3])}
-
-
-def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
-    return a is b or (a.shape == b.shape and bool(np.array_equal(a, b)))
 
 
 def _same_rows(sol: Solution, act_rows: np.ndarray) -> bool:

@@ -114,10 +114,10 @@ class Linearisation:
         same rotation and gravity weights (relative-translation weights may differ: see window)."""
         return (
             terms.n_keyframes == len(self.g) // 6
-            and _same_array(self.R_rep, terms.R_rep)
-            and _same_array(self.rel_delta_m, terms.rel_delta_m)
-            and _same_array(self.rel_w_r, terms.rel_w_r)
-            and _same_array(self.grav_w, terms.grav_w)
+            and T.same_array(self.R_rep, terms.R_rep)
+            and T.same_array(self.rel_delta_m, terms.rel_delta_m)
+            and T.same_array(self.rel_w_r, terms.rel_w_r)
+            and T.same_array(self.grav_w, terms.grav_w)
         )
 
     def window(self, lo: int, hi: int) -> "WindowModel":
@@ -154,10 +154,6 @@ class WindowModel:
     rt_TtT: np.ndarray
     rt_Pte: np.ndarray
     rt_Tte: np.ndarray
-
-
-def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
-    return a is b or (a.shape == b.shape and bool(np.array_equal(a, b)))
 
 
 def linearise_fixed_terms(terms: T.Terms, ev: T.Evaluation) -> Linearisation:

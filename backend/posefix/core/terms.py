@@ -198,6 +198,11 @@ def window_terms(terms: Terms, a: int, b: int) -> Terms:
     )
 
 
+def same_array(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two arrays hold the same values (the same object: at once)."""
+    return a is b or (a.shape == b.shape and bool(np.array_equal(a, b)))
+
+
 def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: float = 1e-3) -> np.ndarray | None:
     """(k,) bool: keyframes whose location or user terms differ between two problems on the
     same keyframes, or whose relative or gravity terms were re-weighted (by more than ``tol_rel``)
@@ -205,7 +210,7 @@ def changed_keyframes(new: Terms, old: Terms, tol_m: float = 1e-3, tol_rel: floa
     k = new.n_keyframes
     if old.n_keyframes != k or not np.array_equal(new.loc_idx, old.loc_idx):
         return None
-    if new.rel_delta_m is not old.rel_delta_m and not np.array_equal(new.rel_delta_m, old.rel_delta_m):
+    if not same_array(new.rel_delta_m, old.rel_delta_m):
         return None  # other reported steps (the first edit of a run measures them without sideways jumps)
     out = np.zeros(k, dtype=bool)
     moved = np.any(np.abs(new.loc_g_m - old.loc_g_m) > tol_m, axis=1)
