@@ -1,15 +1,19 @@
 """WiFi fingerprint map (f3) and access-point RSSI peaks (f4), built from surveyed walks.
 
-Survey: every WiFi scan of a walk with waypoints is placed at the straight-line position
+Survey: every WiFi scan of a walk with waypoints (grouped and timed by
+:func:`posefix.mapmatch.sensors.wifi_scans`) is placed at the straight-line position
 between the waypoints around its time (the competition's assumption); scans outside the
 first..last waypoint span are not used. The map is the matrix of RSSI (dBm; -100 for an
 access point not heard) over those positions.
 
-f3 prediction (weighted k-nearest neighbours in signal space): for a scan r, the distance
-to fingerprint i is the RMS RSSI difference over the access points either heard,
-``d_i = sqrt(mean_a (r_a - R_ia)²)``; the k nearest with weights ``1 / (d_i + 1 dB)``
-give the mean position μ and covariance ``Σ = Σ_i w_i (p_i - μ)(p_i - μ)ᵀ + σ0² I`` with
-σ0 = 2 m (a survey point's own uncertainty). Scans sharing fewer than ``min_common``
+f3 prediction (weighted k-nearest neighbours in signal space, ``method="knn"``, the
+default): for a scan r, the distance to fingerprint i is the RMS RSSI difference over the
+access points the scan heard, ``d_i = sqrt(mean_a (r_a - R_ia)²)`` (``similarity="scan"``;
+``"union"``: over those either heard, see :meth:`FingerprintMap.signal_distances_db`);
+the k nearest with weights ``1 / (d_i + 1 dB)`` give the mean position μ and covariance
+``Σ = s·(Σ_i w_i (p_i - μ)(p_i - μ)ᵀ + σ0² I)`` with σ0 = 2 m (a survey point's own
+uncertainty) and s the scale :func:`calibrate_covariance` fits on the survey itself (per
+quartile of the best match's distance for k-NN). Scans sharing fewer than ``min_common``
 access points with the map predict nothing.
 
 Path-loss alternative (``method="pathloss"``), for floors where the survey is sparse: each
@@ -23,7 +27,7 @@ the prediction. Unlike k-NN it extrapolates beyond the surveyed corridors (leave
 site1/F1: median 7.1 m vs 11.2 m for k-NN; means 14.3 vs 16.9 m), but where the survey is
 dense k-NN is better (tracking with fingerprints that cover the walk: 1.4 m vs 3.5 m).
 
-``method="hybrid"`` (default) uses k-NN when its best match is within ``knn_max_db`` (8 dB
+``method="hybrid"`` uses k-NN when its best match is within ``knn_max_db`` (8 dB
 RMS: a scan taken close to a survey point) and the path-loss prediction otherwise. (8 dB
 was chosen on the even-numbered walks and checked on the odd ones; 4-12 dB all give the
 same result within 0.3 m there.)
@@ -252,8 +256,10 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
                        max_age_ms: float | None = WIFI_MAX_AGE_MS, scan_time: str = "median",
                        calibrate: bool = True, **options) -> FingerprintMap:
     """Fingerprint map from walks with waypoints (module docstring). ``method`` is
-    ``"hybrid"`` (default), ``"knn"`` or ``"pathloss"``; ``vertices_xy_m`` may be given here
-    or at prediction time."""
+    ``"knn"`` (default), ``"hybrid"`` or ``"pathloss"``; ``vertices_xy_m`` may be given here
+    or at prediction time; ``max_age_ms``, ``scan_time``: scan grouping
+    (:func:`posefix.mapmatch.sensors.wifi_scans`); ``calibrate``: fit Σ's scale and the
+    outlier rate (:func:`calibrate_covariance`); ``options``: other ``FingerprintMap`` fields."""
     pos, scans, wid = [], [], []
     for iw, w in enumerate(walks):
         wp = w.waypoints
