@@ -84,10 +84,14 @@ class Tracker:
     ``start_wifi``: with ``start_xy_m`` None, an optional WiFi prediction ``(mean, cov[, ε])``
     of a scan taken before the first step: the start prior instead of the uniform one.
 
+    ``filtered`` (default): the live distribution (``column()``, each step's summary) is a
+    forward (sum-product) filter's marginal; False: the Viterbi max-product column (no
+    second filter to run).
+
     ``step(step_xy_m, t_ms, wifi=None, peak=None)``: one detected step as a floor-frame
-    vector (m, heading bias already applied); ``wifi`` an optional ``(mean (2,), cov (2,2))``
+    vector (m, heading bias already applied); ``wifi`` an optional ``(mean (2,), cov (2,2)[, ε])``
     position predicted by the fingerprint map, ``peak`` an optional ``(xy (2,), sigma_m)``
-    RSSI-peak location. Returns a :class:`TrackPoint`.
+    RSSI-peak location. Returns a :class:`TrackPoint` (``vertex``: the Viterbi column's best).
     """
 
     def __init__(self, model, start_xy_m: tuple[float, float] | None = None, t0_ms: int = 0,
