@@ -120,7 +120,13 @@ def resolve_data_path(data_dir: Path, path: str) -> tuple[Path, str]:
 
 
 def source_file_path(settings: Settings, source: TileSource) -> Path:
-    return resolve_data_path(settings.data_dir, source.path or "")[0]
+    return _resolved_file(str(settings.data_dir), source.path or "")
+
+
+@functools.lru_cache(maxsize=256)
+def _resolved_file(data_dir: str, path: str) -> Path:
+    # resolving walks the file system (a stat per component): once per registered file, not per tile
+    return resolve_data_path(Path(data_dir), path)[0]
 
 
 def _cache_dir(settings: Settings, options: TileSettings, source: TileSource) -> Path:
