@@ -78,13 +78,6 @@ class Row:
 @dataclass
 class Samples:
     latencies_s: list[float] = field(default_factory=list)
-    errors: list[str] = field(default_factory=list)
-    by_kind: dict[str, list[float]] = field(default_factory=dict)
-    error_kinds: dict[str, int] = field(default_factory=dict)  # "<request kind> <exception or status>" -> count
-
-    def add(self, kind: str, seconds: float) -> None:
-        self.latencies_s.append(seconds)
-        self.by_kind.setdefault(kind, []).append(seconds)
 
     def p(self, q: float) -> float:
         return float(np.percentile(self.latencies_s, q)) * 1000.0 if self.latencies_s else float("nan")
@@ -323,108 +316,72 @@ def adjustable_features(features: list[dict]) -> list[dict]:
     return [f for f in features if f["properties"]["adjustable"] and not f["properties"]["locked"]] or features
 
 
-async def operator_loop(base: str, cookies: httpx.Cookies, run_id: int, tiles: list[tuple[int, int, int]],
-                        start_wall: float, seconds: float, samples: Samples, seed: int) -> None:
-    """One operator's browser tab.
+@dataclass
+class LoadStats:
+    """locust's statistics of the load, per request kind (``keyframes``, ``preview``, ``tile``)
+    and ``"all"``: requests, failures, p50 and p95 in ms (locust keeps response times rounded
+    to 2 significant digits above 100 ms, so a p95 moves in 10 ms steps)."""
 
-    It behaves as a browser does, no more: one pooled keep-alive client (a browser keeps its
-    connections open), ``Accept-Encoding: gzip`` (httpx's default, as every browser's), and
-    on reloading the keyframes it revalidates what it has with ``If-None-Match: <ETag>`` (a
-    browser does that by itself for a ``Cache-Control: no-cache`` response) and keeps its
-    copy on 304. That is realism, not a shortcut: every reload is still a request the server
-    answers after checking the session and access. The generator parses the GeoJSON only
-    when it gets a new one (with orjson) and never parses preview or tile bodies (they are
-    read to the end, as a browser would), so it spends little CPU beside the server on a
-    shared machine.
-    """
-    rng = random.Random(seed)
-    async with httpx.AsyncClient(base_url=base, headers={"Origin": base}, cookies=cookies, timeout=30) as client:
-        candidates: list[dict] = []
-        revision = 0
-        etag: str | None = None
-
-        async def request(kind: str, method: str, url: str, **kwargs: object) -> httpx.Response | None:
-            started = time.perf_counter()
-            try:
-                response = await client.request(method, url, **kwargs)
-            except httpx.HTTPError as exc:
-                samples.errors.append(f"{method} {url}: {type(exc).__name__}: {exc}")
-                samples.error_kinds[f"{kind} {type(exc).__name__}"] = samples.error_kinds.get(f"{kind} {type(exc).__name__}", 0) + 1
-                return None
-            samples.add(kind, time.perf_counter() - started)
-            if response.status_code >= 400:
-                samples.errors.append(f"{method} {url}: {response.status_code}")
-                samples.error_kinds[f"{kind} {response.status_code}"] = samples.error_kinds.get(f"{kind} {response.status_code}", 0) + 1
-            return response
-
-        # Untimed, before the load starts: the tab has loaded the app, so its connection is open
-        # (and this generator process has done its first-request work, lazy imports included).
-        (await client.get("/healthz")).raise_for_status()
-        await asyncio.sleep(max(start_wall - time.time(), 0.0))  # every operator starts the load together
-        stop_at = time.perf_counter() + seconds - max(time.time() - start_wall, 0.0)
-        await asyncio.sleep(rng.uniform(0, 1.0))  # operators do not all start at once
-        while time.perf_counter() < stop_at:
-            if not candidates or rng.random() < 0.1:
-                headers = {"If-None-Match": etag} if etag and candidates else {}
-                response = await request("keyframes", "GET", f"/api/v1/runs/{run_id}/keyframes", headers=headers)
-                if response is not None and response.status_code == 200:
-                    collection = orjson.loads(response.content)
-                    candidates, revision = adjustable_features(collection["features"]), collection["revision"]
-                    etag = response.headers.get("etag")
-            elif rng.random() < 0.6:
-                await request("preview", "POST", f"/api/v1/runs/{run_id}/preview",
-                              content=orjson.dumps(preview_body(candidates, revision, rng), option=orjson.OPT_SERIALIZE_NUMPY),
-                              headers={"Content-Type": "application/json"})
-            else:
-                start = rng.randrange(len(tiles))
-                for z, x, y in (tiles * 2)[start:start + 6]:
-                    await request("tile", "GET", f"/api/v1/tiles/bench-pm/{z}/{x}/{y}.pbf")
-            await asyncio.sleep(rng.uniform(0.5, 1.5))
+    requests: dict[str, int]
+    failures: dict[str, int]
+    p50_ms: dict[str, float]
+    p95_ms: dict[str, float]
+    errors: list[str]  # "<kind> <error>: <occurrences>", most frequent first
+    cpu_s: float  # CPU of locust's process tree, start-up included
 
 
-async def run_operators(base: str, sessions: list[dict[str, str]], start_wall: float, seconds: float, run_id: int,
-                        tiles: list[tuple[int, int, int]], first_seed: int) -> Samples:
-    samples = Samples()
-    await asyncio.gather(*(
-        operator_loop(base, httpx.Cookies(cookies), run_id, tiles, start_wall, seconds, samples, seed=first_seed + i)
-        for i, cookies in enumerate(sessions)
-    ))
-    return samples
+def read_locust_stats(prefix: Path) -> tuple[dict[str, int], dict[str, int], dict[str, float], dict[str, float], list[str]]:
+    """Parse ``PREFIX_stats.csv`` (one row per request name and an ``Aggregated`` row) and
+    ``PREFIX_failures.csv``."""
+    import csv
 
-
-def generator_process(args: tuple) -> tuple[Samples, float]:  # type: ignore[type-arg]
-    """One load-generator process: its share of the operators; returns their samples and its CPU seconds."""
-    started_cpu = time.process_time()
-    samples = asyncio.run(run_operators(*args))
-    return samples, time.process_time() - started_cpu
+    requests, failures, p50, p95 = {}, {}, {}, {}
+    with open(f"{prefix}_stats.csv", newline="") as handle:
+        for row in csv.DictReader(handle):
+            kind = "all" if row["Name"] == "Aggregated" else row["Name"]
+            requests[kind], failures[kind] = int(row["Request Count"]), int(row["Failure Count"])
+            p50[kind] = float(row["50%"]) if row["50%"] != "N/A" else float("nan")
+            p95[kind] = float(row["95%"]) if row["95%"] != "N/A" else float("nan")
+    with open(f"{prefix}_failures.csv", newline="") as handle:
+        rows = sorted(csv.DictReader(handle), key=lambda r: -int(r["Occurrences"]))
+    errors = [f"{r['Name']} {r['Error']}: {r['Occurrences']}" for r in rows]
+    return requests, failures, p50, p95, errors
 
 
 def run_load(base: str, sessions: list[httpx.Cookies], seconds: float, run_id: int,
-             tiles: list[tuple[int, int, int]], processes: int) -> tuple[Samples, float]:
-    """The operators, spread over ``processes`` generator processes (a browser per operator
-    has its own CPU; one event loop for all 50 would make every operator wait while another
-    parses its GeoJSON). Returns the merged samples and the generators' CPU seconds."""
-    import concurrent.futures
-    import multiprocessing
+             tiles: list[tuple[int, int, int]], processes: int, workdir: Path) -> LoadStats:
+    """The operators (benchmarks/locustfile.py) under locust, headless, spread over
+    ``processes`` forked locust worker processes (a browser per operator has its own CPU; one
+    process for all 50 would make every operator wait while another parses its GeoJSON)."""
+    import resource
 
-    cookies = [dict(c.items()) for c in sessions]
-    processes = max(1, min(processes, len(cookies)))
-    shares = [list(range(len(cookies)))[i::processes] for i in range(processes)]
-    start_wall = time.time() + 3.0  # time for the processes to start and import
-    merged, cpu_s = Samples(), 0.0
-    with concurrent.futures.ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(generator_process, (base, [cookies[i] for i in share], start_wall, seconds, run_id,
-                                                   tiles, share[0] if share else 0)) for share in shares if share]
-        for future in futures:
-            samples, cpu = future.result()
-            cpu_s += cpu
-            merged.latencies_s += samples.latencies_s
-            merged.errors += samples.errors
-            for kind, values in samples.by_kind.items():
-                merged.by_kind.setdefault(kind, []).extend(values)
-            for kind, n in samples.error_kinds.items():
-                merged.error_kinds[kind] = merged.error_kinds.get(kind, 0) + n
-    return merged, cpu_s
+    spawn_s = 1.0  # -r N spawns the N operators within 1 s; they start the load together after it
+    config = workdir / "load.json"
+    config.write_text(orjson.dumps({
+        "run_id": run_id, "tiles": tiles, "seconds": seconds, "spawn_s": spawn_s,
+        "sessions": [[{"name": c.name, "value": c.value, "domain": c.domain, "path": c.path} for c in jar.jar]
+                     for jar in sessions],
+    }).decode())
+    config.with_suffix(".claims").mkdir()
+    prefix, log_path = workdir / "locust", workdir / "locust.log"
+    n = len(sessions)
+    command = [str(Path(sys.executable).parent / "locust"), "-f", str(REPO / "benchmarks" / "locustfile.py"),
+               "--headless", "-u", str(n), "-r", str(n), "-t", f"{spawn_s + seconds + 3:.0f}s",
+               "--processes", str(max(1, min(processes, n))), "--host", base, "--csv", str(prefix),
+               "--only-summary", "--loglevel", "WARNING"]
+    env = {**os.environ, "POSEFIX_BENCH_LOAD": str(config),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH", "")]))}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)  # locust reaps its workers, this process reaps locust
+    with open(log_path, "wb") as log:
+        returncode = subprocess.run(command, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=REPO).returncode
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if not Path(f"{prefix}_stats.csv").exists():
+        raise RuntimeError(f"locust exited with {returncode} and wrote no statistics; see {log_path}")
+    requests, failures, p50, p95, errors = read_locust_stats(prefix)
+    if len(list(config.with_suffix(".claims").iterdir())) != n:
+        raise RuntimeError(f"not every operator started; see {log_path}")
+    cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    return LoadStats(requests, failures, p50, p95, errors, cpu_s)
 
 
 def _stat(pid: int) -> list[str] | None:
@@ -608,27 +565,27 @@ def main() -> None:
         sessions = login_operators(base, n_operators)
         before = latency_buckets(base)
         server_cpu_before = process_cpu_s(server.pid)
-        load, generator_cpu_s = run_load(base, sessions, load_s, run_id, keys[-40:], args.generator_processes)
-        generator_cpu = generator_cpu_s / load_s
+        load = run_load(base, sessions, load_s, run_id, keys[-40:], args.generator_processes, workdir)
+        generator_cpu = load.cpu_s / load_s
         server_cpu = (process_cpu_s(server.pid) - server_cpu_before) / load_s
         load_during = os.getloadavg()[0]  # the 1-minute average: nearly the load run's own minute
         after = latency_buckets(base)
-        rows.append(Row(f"load: requests ({n_operators} operators, {load_s:.0f} s)", len(load.latencies_s), "",
-                        None, note=f"{len(load.latencies_s) / load_s:.0f} req/s"))
-        kinds = ", ".join(f"{n} {k}" for k, n in sorted(load.error_kinds.items(), key=lambda kv: -kv[1]))
-        rows.append(Row("load: errors", len(load.errors), "", None,
-                        note="target 0" + (f"; {kinds}; first: {load.errors[0][:160]}" if load.errors else "")))
+        rows.append(Row(f"load: requests ({n_operators} operators, {load_s:.0f} s)", load.requests["all"], "",
+                        None, note=f"{load.requests['all'] / load_s:.0f} req/s"))
+        rows.append(Row("load: errors", load.failures["all"], "", None,
+                        note="target 0" + (f"; {'; '.join(load.errors)[:200]}" if load.errors else "")))
         rows.append(Row("load: CPU of the load generator", 100 * generator_cpu, "%", None,
-                        note=f"of one core, {args.generator_processes} processes; server process {100 * server_cpu:.0f} %; {os.cpu_count()} CPUs, "
+                        note=f"of one core, locust with {args.generator_processes} worker processes, start-up included; "
+                             f"server process {100 * server_cpu:.0f} %; {os.cpu_count()} CPUs, "
                              f"load average {load_during:.1f} at the end of the load"))
-        rows.append(Row("load: p50", load.p(50), "ms", None))
-        rows.append(Row("load: p95", load.p(95), "ms", 250.0))
+        rows.append(Row("load: p50", load.p50_ms["all"], "ms", None))
+        rows.append(Row("load: p95", load.p95_ms["all"], "ms", 250.0))
         routes = {"keyframes": ("GET", "/runs/{run_id}/keyframes"), "preview": ("POST", "/runs/{run_id}/preview"),
                   "tile": ("GET", "/tiles/{source}/{z:int}/{x:int}/{y:int}.{ext}")}
-        for kind, latencies in sorted(load.by_kind.items()):
+        for kind in sorted(k for k in load.requests if k != "all"):
             inside_s = server_p95_s(before, after, *routes[kind]) if kind in routes else float("nan")
-            rows.append(Row(f"load: p95 of {kind} requests", float(np.percentile(latencies, 95)) * 1000.0, "ms", None,
-                            note=f"{len(latencies)} requests; server-side p95 ≤ {inside_s * 1000:,.0f} ms (histogram bucket)"))
+            rows.append(Row(f"load: p95 of {kind} requests", load.p95_ms[kind], "ms", None,
+                            note=f"{load.requests[kind]} requests; server-side p95 ≤ {inside_s * 1000:,.0f} ms (histogram bucket)"))
         admin.close()
     except BaseException:
         print_table(rows)
