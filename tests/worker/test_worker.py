@@ -51,6 +51,21 @@ def job(app, job_id) -> Job:
         return j
 
 
+def run_a_worker_until_finished(app, jid, env):
+    """Start a fresh worker process, wait until job ``jid`` succeeds or dies, stop the worker
+    with SIGTERM and return the job."""
+    worker = subprocess.Popen([POSEFIX, "worker"], env=env, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 180
+        while job(app, jid).status not in ("succeeded", "dead"):
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    finally:
+        worker.send_signal(signal.SIGTERM)
+        worker.wait(timeout=60)
+    return job(app, jid)
+
+
 def worker_env(settings, **extra) -> dict[str, str]:
     env = {**os.environ, "POSEFIX_DATABASE_URL": settings.database_url, "POSEFIX_DATA_DIR": str(settings.data_dir),
            "POSEFIX_ENVIRONMENT": "test", "POSEFIX_WORKER_POLL_S": "0.05", "POSEFIX_LOG_LEVEL": "WARNING"}
@@ -199,16 +214,7 @@ class TestProcesses:
                 first.kill()
         killed = job(app, jid)
         assert killed.status == "running" and killed.attempts == 1
-        second = subprocess.Popen([POSEFIX, "worker"], env=env, stderr=subprocess.DEVNULL)
-        try:
-            deadline = time.monotonic() + 180
-            while job(app, jid).status not in ("succeeded", "dead"):
-                assert time.monotonic() < deadline
-                time.sleep(0.1)
-        finally:
-            second.send_signal(signal.SIGTERM)
-            second.wait(timeout=60)
-        done = job(app, jid)
+        done = run_a_worker_until_finished(app, jid, env)
         assert done.status == "succeeded" and done.attempts == 2
         assert done.worker_id != killed.worker_id
         with app.state.db.transaction(write=False) as s:
@@ -277,16 +283,7 @@ class TestKilledWhileWriting:
         assert orphans and stray_files(app, settings, rid) == sorted(orphans)  # the kill did leave files
         killed = job(app, jid)
         assert killed.status == "running" and killed.attempts == 1
-        second = subprocess.Popen([POSEFIX, "worker"], env=env, stderr=subprocess.DEVNULL)
-        try:
-            deadline = time.monotonic() + 180
-            while job(app, jid).status not in ("succeeded", "dead"):
-                assert time.monotonic() < deadline
-                time.sleep(0.05)
-        finally:
-            second.send_signal(signal.SIGTERM)
-            second.wait(timeout=60)
-        done = job(app, jid)
+        done = run_a_worker_until_finished(app, jid, env)
         assert done.status == "succeeded" and done.attempts == 2 and done.result["already_written"] is False
         revs = revision_rows(app, rid)
         assert [r.number for r in revs] == [0, 1]
