@@ -7,7 +7,8 @@ a JSON file the benchmark writes: ``run_id``, ``tiles`` ([z, x, y] keys of sourc
 load: argon2id logins are slow on purpose and not part of it), ``seconds`` (the load) and
 ``spawn_s`` (time after the test starts by which every operator has been spawned; the load
 starts then for all of them, ``-t`` is ``spawn_s + seconds`` plus a margin so no request is
-cut off).
+cut off). Each locust process writes its CPU seconds from test start to stop into the
+directory ``<config>.cpu``.
 
 Requests are named by kind (``keyframes``, ``preview``, ``tile``) so locust's statistics
 group them; the first connection of each operator (``/healthz``) goes through the raw
@@ -33,12 +34,22 @@ from benchmarks.server import adjustable_features, preview_body
 
 CONFIG_PATH = Path(os.environ.get("POSEFIX_BENCH_LOAD", "posefix-bench-load.json"))
 _test_started_at = 0.0  # time.time() of this process's test start (one per locust process)
+_test_started_cpu_s = 0.0  # and its CPU time then
 
 
 @events.test_start.add_listener
 def note_test_start(environment, **_kwargs) -> None:  # type: ignore[no-untyped-def]
-    global _test_started_at
-    _test_started_at = time.time()
+    global _test_started_at, _test_started_cpu_s
+    _test_started_at, _test_started_cpu_s = time.time(), time.process_time()
+
+
+@events.test_stop.add_listener
+def write_test_cpu(environment, **_kwargs) -> None:  # type: ignore[no-untyped-def]
+    """This process's CPU seconds from test start to stop, for the benchmark's generator CPU
+    without locust's start-up (imports, forking, workers connecting)."""
+    cpu_dir = CONFIG_PATH.with_suffix(".cpu")
+    cpu_dir.mkdir(exist_ok=True)
+    (cpu_dir / str(os.getpid())).write_text(f"{time.process_time() - _test_started_cpu_s:.3f}")
 
 
 def claim_operator(claims_dir: Path, n_operators: int) -> int:

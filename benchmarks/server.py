@@ -13,14 +13,17 @@ fresh data directory, then measures, as a client would see it:
   p95 ≤ 100 ms) and an edit submission, on that 3,601-keyframe run;
 - tiles per second from a PMTiles and an MBTiles file: read in-process, and served over
   HTTP to 8 concurrent clients;
-- load: N operators (default 50) for S seconds (default 60), each logged in with its own
-  session and looping over "load the run's keyframes, drag (preview), fetch 6 tiles" with
-  0.5-1.5 s of thinking between actions (target: no errors, p95 ≤ 250 ms). Each operator
-  behaves as a browser tab does: keep-alive connections, gzip accepted, and a reload of the
-  keyframes revalidated with ``If-None-Match`` (304 when unchanged) — what every browser
-  does on its own for a ``no-cache`` response with an ETag: realism, not a shortcut. The
-  operators are spread over P generator processes (default 5; a browser has its own CPU),
-  and the table shows the generator's CPU, the server's CPU, the load average, and beside
+- load: N operators (default 50) for S seconds (default 60) under locust (headless, the
+  operators in ``benchmarks/locustfile.py``), each logged in with its own session and looping
+  over "load the run's keyframes, drag (preview), fetch 6 tiles" with 0.5-1.5 s of thinking
+  between actions (target: no errors, p95 ≤ 250 ms). Each operator behaves as a browser tab
+  does: keep-alive connections, gzip accepted, and a reload of the keyframes revalidated with
+  ``If-None-Match`` (304 when unchanged) — what every browser does on its own for a
+  ``no-cache`` response with an ETag: realism, not a shortcut. locust forks P worker
+  processes (``--generator-processes``, default 5; a browser has its own CPU); its CSV
+  statistics give the requests, failures and p50/p95 (locust rounds response times above
+  100 ms to 2 significant digits), and the table shows the generator's CPU (locust's process
+  tree, during the load and with its start-up), the server's CPU, the load average, and beside
   each client-side p95 the server's own p95 (from its /metrics histogram).
 
 ``--quick`` shrinks everything (10 min run, 10 operators for 10 s) to check the
@@ -327,7 +330,8 @@ class LoadStats:
     p50_ms: dict[str, float]
     p95_ms: dict[str, float]
     errors: list[str]  # "<kind> <error>: <occurrences>", most frequent first
-    cpu_s: float  # CPU of locust's process tree, start-up included
+    cpu_s: float  # CPU of locust's processes from test start to stop
+    cpu_with_start_up_s: float  # of its whole process tree, start-up included
 
 
 def read_locust_stats(prefix: Path) -> tuple[dict[str, int], dict[str, int], dict[str, float], dict[str, float], list[str]]:
@@ -380,8 +384,12 @@ def run_load(base: str, sessions: list[httpx.Cookies], seconds: float, run_id: i
     requests, failures, p50, p95, errors = read_locust_stats(prefix)
     if len(list(config.with_suffix(".claims").iterdir())) != n:
         raise RuntimeError(f"not every operator started; see {log_path}")
-    cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
-    return LoadStats(requests, failures, p50, p95, errors, cpu_s)
+    cpu_dir = config.with_suffix(".cpu")
+    if len(list(cpu_dir.iterdir())) != max(1, min(processes, n)) + 1:
+        raise RuntimeError(f"not every locust process reported its CPU in {cpu_dir}; see {log_path}")
+    cpu_s = sum(float(path.read_text()) for path in cpu_dir.iterdir())
+    cpu_with_start_up_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    return LoadStats(requests, failures, p50, p95, errors, cpu_s, cpu_with_start_up_s)
 
 
 def _stat(pid: int) -> list[str] | None:
@@ -493,7 +501,7 @@ def main() -> None:
     parser.add_argument("--load-s", type=float, default=None, help="load duration in s (default 60; quick 10)")
     parser.add_argument("--keep", action="store_true", help="keep the temporary data directory")
     parser.add_argument("--generator-processes", type=int, default=5,
-                        help="load-generator processes the operators are spread over (default 5)")
+                        help="locust worker processes the operators are spread over (default 5)")
     args = parser.parse_args()
     quick = args.quick
     n_operators = args.operators or (10 if quick else 50)
@@ -575,7 +583,8 @@ def main() -> None:
         rows.append(Row("load: errors", load.failures["all"], "", None,
                         note="target 0" + (f"; {'; '.join(load.errors)[:200]}" if load.errors else "")))
         rows.append(Row("load: CPU of the load generator", 100 * generator_cpu, "%", None,
-                        note=f"of one core, locust with {args.generator_processes} worker processes, start-up included; "
+                        note=f"of one core, locust with {args.generator_processes} worker processes "
+                             f"({100 * load.cpu_with_start_up_s / load_s:.0f} % with its start-up); "
                              f"server process {100 * server_cpu:.0f} %; {os.cpu_count()} CPUs, "
                              f"load average {load_during:.1f} at the end of the load"))
         rows.append(Row("load: p50", load.p50_ms["all"], "ms", None))
