@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from posefix.cli import app
+from posefix.commands.engine import single_threaded_blas
 
 basemap_app = typer.Typer(help="Offline basemap tiles from OpenStreetMap extracts.", no_args_is_help=True)
 app.add_typer(basemap_app, name="basemap")
@@ -24,6 +25,7 @@ def demo(
 
     Safe to run again: only what is missing is added.
     """
+    single_threaded_blas()
     from posefix.config import Settings
     from posefix.demo import DemoError, set_up_demo
 

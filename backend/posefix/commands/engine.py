@@ -107,7 +107,7 @@ class _Steps:
         self.bar.close()
 
 
-def _single_threaded_blas() -> None:
+def single_threaded_blas() -> None:
     """One BLAS thread unless the user chose otherwise (before numpy is first imported).
 
     The engine's linear algebra is 6x6 blocks, thin (n,3) products and a banded Cholesky:
@@ -167,7 +167,7 @@ def correct_command(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Correct a pose run from operator edits: optimise keyframes, propagate to every sample."""
-    _single_threaded_blas()
+    single_threaded_blas()
     with _user_errors():
         t_start = time.perf_counter()
         if keyframes_every_s is not None and keyframes_every_m is not None:

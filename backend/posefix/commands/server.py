@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 
 from posefix.cli import app
+from posefix.commands.engine import single_threaded_blas
 
 users_app = typer.Typer(help="Manage user accounts.", no_args_is_help=True)
 db_app = typer.Typer(help="Database schema (Alembic migrations).", no_args_is_help=True)
@@ -103,6 +104,7 @@ def serve(
         "(httpx and requests 5 s) so a client never reuses one the server is just closing"), min=1)] = 75,
 ) -> None:
     """Serve the API and the front end (and, on SQLite, the job worker)."""
+    single_threaded_blas()  # concurrent small solves: BLAS threads would only spin against each other
     import uvicorn
 
     from posefix.config import Settings
@@ -129,6 +131,7 @@ def worker(
     once: Annotated[bool, typer.Option(help="process jobs until none is left, then exit")] = False,
 ) -> None:
     """Run a job worker (any number may share the database). SIGTERM finishes the current job."""
+    single_threaded_blas()
     from posefix.config import Settings
     from posefix.db import Database
     from posefix.main import configure_logging
