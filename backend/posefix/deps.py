@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 
 from posefix.config import Settings
 from posefix.db import Database
-from posefix.errors import Forbidden, Unauthorized, UnsupportedMediaType
+from posefix.errors import BadRequest, Forbidden, Unauthorized, UnsupportedMediaType
 from posefix.users.models import Role, TokenScope
 from posefix.users.service import Principal, resolve_session, resolve_token
 
@@ -158,3 +158,13 @@ EditorUser = Annotated[Principal, Depends(require(Role.admin, Role.reviewer, Rol
 EditorReader = Annotated[Principal, Depends(require(Role.admin, Role.reviewer, Role.operator, read_only=True))]
 UploaderUser = Annotated[Principal, Depends(require(Role.admin, Role.client, allow_multipart=True))]
 OwnerUser = Annotated[Principal, Depends(require(Role.admin, Role.client))]
+
+
+def form_text(form: Any, key: str) -> str | None:
+    """A multipart form's text field ``key`` (None when absent); a file there is a 400."""
+    v = form.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, str):
+        raise BadRequest(f"form field {key!r} must be text", code="bad_form", extra={"field": key})
+    return v

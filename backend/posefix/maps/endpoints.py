@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, Query, Request, Response, status
 from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
-from posefix.deps import AnyUser, EditorUser, SessionDep, SettingsDep, require
+from posefix.deps import AnyUser, EditorUser, SessionDep, SettingsDep, form_text, require
 from posefix.errors import AppError, BadRequest, LengthRequired, PayloadTooLarge, UnsupportedMediaType, responses
 from posefix.maps import repository as repo
 from posefix.maps import service, sessions, suggestions
@@ -70,15 +70,6 @@ async def _form(request: Request, limit: int, what: str) -> Any:
         raise BadRequest(f"malformed multipart body: {exc}", code="bad_form") from None
 
 
-def _text(form: Any, key: str) -> str | None:
-    v = form.get(key)
-    if v is None:
-        return None
-    if not isinstance(v, str):
-        raise BadRequest(f"form field {key!r} must be text", code="bad_form", extra={"field": key})
-    return v
-
-
 def _file(form: Any, key: str = "file") -> Any:
     f = form.get(key)
     if f is None or isinstance(f, str):
@@ -97,10 +88,10 @@ async def upload_floorplan(request: Request, principal: AdminUploader, session: 
     """Upload a floor plan (admins). The files are checked now; the model is built by a job
     (``job_id``: follow it with ``GET /jobs/{id}`` or ``GET /events``)."""
     form = await _form(request, service.MAX_FLOOR_UPLOAD_BYTES, "a floor plan")
-    name = (_text(form, "name") or "").strip()
+    name = (form_text(form, "name") or "").strip()
     if not name or len(name) > 200:
         raise BadRequest("form field 'name': give 1 to 200 characters", code="bad_form", extra={"field": "name"})
-    raw_cell = _text(form, "cell_m")
+    raw_cell = form_text(form, "cell_m")
     try:
         cell_m = 0.8 if raw_cell in (None, "") else float(raw_cell)
         if not 0.2 <= cell_m <= 5.0:
@@ -171,7 +162,7 @@ async def track_walk(floorplan_id: int, request: Request, session: SessionDep, s
     await run_in_threadpool(service.MODELS.get, settings, fp)  # 409 before reading the upload when there is no model yet
     form = await _form(request, service.MAX_WALK_BYTES, "a walk")
     up = _file(form)
-    start = _text(form, "start")
+    start = form_text(form, "start")
     # CPU-bound (reading the file, ~1 ms per step): off the event loop.
     return await run_in_threadpool(service.track_walk_upload, settings, fp, up.file, up.filename, start)
 

@@ -11,7 +11,7 @@ from starlette.datastructures import UploadFile
 
 import anyio
 
-from posefix.deps import AnyUser, OwnerUser, ReviewerUser, SessionDep, SettingsDep, UploaderUser, solver_limiter
+from posefix.deps import AnyUser, OwnerUser, ReviewerUser, SessionDep, SettingsDep, UploaderUser, form_text, solver_limiter
 from posefix.errors import AppError, BadRequest, LengthRequired, PayloadTooLarge, UnsupportedMediaType, responses
 from posefix.runs import correction
 from posefix.runs import images as image_service
@@ -49,15 +49,6 @@ UPLOAD_SCHEMA: dict[str, Any] = {
 }
 
 
-def _form_str(form: Any, key: str) -> str | None:
-    v = form.get(key)
-    if v is None:
-        return None
-    if not isinstance(v, str):
-        raise BadRequest(f"form field {key!r} must be text", code="bad_form", extra={"field": key})
-    return v
-
-
 @router.post("/runs", response_model=RunPublic, status_code=201, openapi_extra=UPLOAD_SCHEMA,
              responses=responses(400, 401, 403, 411, 413, 415, 422))
 async def upload_run(request: Request, principal: UploaderUser, session: SessionDep, settings: SettingsDep) -> RunPublic:
@@ -80,7 +71,7 @@ async def upload_run(request: Request, principal: UploaderUser, session: Session
     except Exception as exc:
         raise BadRequest(f"malformed multipart body: {exc}", code="bad_form") from None
     try:
-        name = (_form_str(form, "name") or "").strip()
+        name = (form_text(form, "name") or "").strip()
         file = form.get("file")
         if not isinstance(file, UploadFile):
             raise BadRequest("multipart field 'file' (the run) is missing", code="bad_form", extra={"field": "file"})
@@ -88,9 +79,9 @@ async def upload_run(request: Request, principal: UploaderUser, session: Session
             raise BadRequest("multipart field 'name' is missing or empty", code="bad_form", extra={"field": "name"})
         if len(name) > 200:
             raise BadRequest("name is longer than 200 characters", code="bad_form", extra={"field": "name"})
-        fmt = _form_str(form, "format") or None
+        fmt = form_text(form, "format") or None
         origin = None
-        origin_s = _form_str(form, "origin")
+        origin_s = form_text(form, "origin")
         if origin_s:
             try:
                 lat, lon, alt = (float(x) for x in origin_s.split(","))
