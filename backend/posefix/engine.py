@@ -29,9 +29,11 @@ from posefix.core import terms as T
 from posefix.core.config import ConfigError, CorrectionConfig
 from posefix.core.drift import (
     DriftEstimate,
+    GnssLevels,
     GnssSteps,
     edit_bends,
     estimate_drift,
+    gnss_levels,
     gnss_steps,
     gnss_transient,
     no_drift,
@@ -279,6 +281,17 @@ class Problem:
             self._static[key] = (shape_change_evidence(transient, np.hypot(side[:, 0], side[:, 1])), transient)
         return self._static[key]
 
+    def gnss_levels(self, rows: np.ndarray) -> GnssLevels | None:
+        """The GNSS level model's data on these keyframe rows (drift.gnss_levels), from every
+        sample's fix (cached: it depends on the run only); None without raw GNSS."""
+        if self.g_enu_m is None:
+            return None
+        key = ("levels", self._rows_key(rows))
+        if key not in self._static:
+            u = self.g_enu_m[:, :2] - self.p_enu_m[:, :2]
+            self._static[key] = gnss_levels(self.run.t_s, u, self.run.t_s[rows])
+        return self._static[key]
+
     def _location_measurements(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Location measurements on these keyframe rows (k,3), which have a fix (k,), and the
         measurements with NaN rows where there is none (cached per row set: read only)."""
@@ -353,7 +366,8 @@ class Problem:
         same_rows = warm_sol is not None and _same_rows(warm_sol, act_rows)
         frozen = None
         if local and same_rows and warm_sol.drift.tau_s > 0:
-            frozen = (warm_sol.drift.sigma_b_m**2, warm_sol.drift.tau_s, warm_sol.drift.detected)
+            frozen = (warm_sol.drift.sigma_b_m**2, warm_sol.drift.tau_s, warm_sol.drift.detected,
+                      warm_sol.drift)
         if drift is not None:
             if len(drift.bias_sigma_m) != len(act_rows):
                 raise ValueError(f"drift is for {len(drift.bias_sigma_m)} keyframes, the solve has {len(act_rows)}")
@@ -363,6 +377,7 @@ class Problem:
                 lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
                 cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
                 frozen=frozen, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan),
+                levels=self.gnss_levels(act_rows),
             )
         else:
             drift = no_drift(len(act_rows))
@@ -378,7 +393,10 @@ class Problem:
             if np.any(extra_rel > 0):
                 rel_w_t = 1.0 / np.sqrt(1.0 / static.rel_w_t**2 + extra_rel)
         at = slice(None) if len(loc_idx) == len(act_rows) else loc_idx  # every keyframe located: no gathers
-        sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[at] ** 2)
+        if drift.loc_sigma_h_m is not None:  # the GNSS level model's own measurements (drift.gnss_levels)
+            sigma_h = drift.loc_sigma_h_m[at]
+        else:
+            sigma_h = np.sqrt(lc.sigma_h_m**2 + drift.bias_sigma_m[at] ** 2)
         loc_sigma = np.stack([sigma_h, sigma_h, np.full(len(loc_idx), lc.sigma_v_m)], axis=1)
         loc_sigma[dragged[at]] = np.inf  # weight 0: kept in place so local solves see the same located set
         loc_g = g[at] - drift.bias_enu_m[at]

@@ -4,6 +4,9 @@ import numpy as np
 import pytest
 
 from posefix.core.drift import estimate_drift, estimate_walk, smooth_gauss_markov
+from posefix.core import geodesy
+from posefix.core.simulate import simulate
+from posefix.engine import prepare
 
 
 def straight(k=601):
@@ -232,3 +235,79 @@ def test_one_more_edit_on_a_dragged_pose_solved_locally_lands_near_the_full_solv
     assert "window" in local.solver.method
     gap = np.hypot(*(local.keyframes.p_enu_m - full.keyframes.p_enu_m)[:, :2].T)
     assert np.max(gap) < 0.05, np.max(gap)
+
+
+# ----------------------------------------------------------------------------- GNSS levels
+
+
+def _levels_problem(seed: int = 3, k: int = 400):
+    """A smooth pose error, a fix level that jumps for 80 s and again later, white noise: u = c - e + w."""
+    from posefix.core.drift import GnssLevels
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(k, dtype=float)
+    e = np.column_stack([2.0 * np.sin(t / 70.0 + 1.0), 1.5 * np.cos(t / 90.0)])
+    c = np.zeros((k, 2))
+    c[150:230] += [8.0, -6.0]
+    c[300:] += [-5.0, 4.0]
+    u = c - e + rng.normal(0.0, 0.5, (k, 2))
+    return t, e, c, u, GnssLevels
+
+
+def test_level_jumps_are_found_where_the_fix_jumps_and_not_in_a_smooth_wander():
+    from posefix.core.drift import find_level_jumps
+
+    t, e, c, u, _ = _levels_problem()
+    jumps, sizes = find_level_jumps(u, 0.5, window=20, gap=3)
+    assert len(jumps) == 3 and np.all(np.abs(jumps - [150, 230, 300]) <= 3), jumps  # to the left-out gap (3)
+    assert np.allclose(sizes, [[8, -6], [-8, 6], [-5, 4]], atol=1.0), sizes
+    none, _ = find_level_jumps(-e + np.random.default_rng(4).normal(0.0, 0.5, e.shape), 0.5, window=20, gap=3)
+    assert len(none) == 0, none
+
+
+def test_level_smoother_matches_the_dense_solution_and_recovers_the_pose_error():
+    from posefix.core.drift import _level_blocks, find_level_jumps, solve_levels
+
+    t, e, c, u, GnssLevels = _levels_problem(k=120)
+    u = u.copy()
+    c_small = c[:120]
+    jumps, sizes = find_level_jumps(u, 0.5, window=20, gap=3)
+    lv = GnssLevels(u, np.ones(120, dtype=bool), 0.5, jumps, sizes)
+    edit_kf = np.array([10, 60, 110])
+    y = e[edit_kf] + 0.1
+    c_hat, e_hat, var_c = solve_levels(t, lv, edit_kf, y, 0.5, 3.0)
+    Dg, L, w = _level_blocks(t, lv, edit_kf, 0.5, 3.0, 4)
+    k = len(t)
+    H = np.zeros((3 * k, 3 * k))
+    for i in range(k):
+        H[3 * i:3 * i + 3, 3 * i:3 * i + 3] = Dg[i]
+    for i in range(k - 1):
+        H[3 * i + 3:3 * i + 6, 3 * i:3 * i + 3] = L[i]
+        H[3 * i:3 * i + 3, 3 * i + 3:3 * i + 6] = L[i].T
+    g = np.zeros((k, 3, 2))
+    g[:, 0] -= w[:, None] * u
+    g[:, 2] += w[:, None] * u
+    g[edit_kf, 0] += y / 0.25
+    x = np.linalg.solve(H, g.reshape(3 * k, 2)).reshape(k, 3, 2)
+    assert np.allclose(x[:, 2], c_hat, atol=1e-8) and np.allclose(x[:, 0], e_hat, atol=1e-8)
+    assert np.allclose(np.diag(np.linalg.inv(H))[2::3], var_c, rtol=1e-8)
+    assert np.sqrt(np.mean((e_hat - e[:120]) ** 2)) < 0.5
+    assert np.sqrt(np.mean((c_hat - c_small) ** 2)) < 0.7
+
+
+def test_a_pose_that_bridged_canyon_offsets_is_corrected_by_the_level_model():
+    from benchmarks.engine import edit_set, naive_positions
+
+    sim = simulate(duration_s=900.0, rate_hz=10.0, edit_every_s=100.0, seed=11, regime="canyon_ins")
+    problem = prepare(sim.run)
+    sol = problem.solve(edit_set(sim))
+    assert sol.drift.loc_sigma_h_m is not None  # the level model took over the location term
+    truth = geodesy.geodetic_to_enu(sim.truth.lat_deg, sim.truth.lon_deg, sim.truth.alt_m, problem.origin)
+    out = problem.full_run(sol).run
+    p = geodesy.geodetic_to_enu(out.lat_deg, out.lon_deg, out.alt_m, problem.origin)
+
+    def rmse(a):
+        return float(np.sqrt(np.mean(np.sum((a - truth)[:, :2] ** 2, axis=1))))
+
+    assert rmse(p) < 0.7 * rmse(naive_positions(problem, sim)), (rmse(p), rmse(naive_positions(problem, sim)))
+    assert rmse(p) < rmse(problem.p_enu_m) / 4.0

@@ -82,6 +82,7 @@ class DriftEstimate:
     sigma_b_m: float = 0.0
     tau_s: float = 0.0
     n_steps: int = 0
+    loc_sigma_h_m: np.ndarray | None = None
 
     def to_json(self) -> dict:
         return {
@@ -424,8 +425,9 @@ def estimate_drift(
     prior_tau_s: float,
     min_edits_for_estimate: int = 3,
     window: int = 5,
-    frozen: tuple[float, float, bool] | None = None,
+    frozen: tuple | None = None,
     steps: GnssSteps | None = None,
+    levels: GnssLevels | None = None,
 ) -> DriftEstimate:
     """Fit the bias model to the edits; see the module docstring.
 
@@ -433,8 +435,11 @@ def estimate_drift(
     (NaN where none), edit_kf (m,) keyframe of each edit, edit_c_m (m,3) edit targets
     (vertical ignored where ``edit_has_alt`` is False).  ``frozen`` = (sigma_b^2, tau_s,
     detected) holds the model's parameters (a live drag re-uses those of the last solve so
-    one more edit changes the bias only around it).  ``steps`` passes the result of
-    ``gnss_steps`` when the caller keeps it between solves (it depends on the run only).
+    one more edit changes the bias only around it); a fourth element, the DriftEstimate
+    of that solve, keeps its GNSS levels (a live drag).  ``steps`` passes the
+    result of ``gnss_steps`` when the caller keeps it between solves (it depends on the run
+    only).  ``levels`` (``gnss_levels``, also the run's only) enables the level model where
+    the fix shows persistent jumps the pose does not (see the "GNSS levels" section).
     """
     k = len(kf_t_s)
     if len(edit_kf) == 0:
@@ -518,7 +523,15 @@ def estimate_drift(
     var_h = var_h + suspect
     if np.any(suspect > 0):
         detected = True
-    weight = sigma_w_h_m**2 / (sigma_w_h_m**2 + var_h)
+    loc_sigma = None
+    if levels is not None and len(steps.index) and levels_bridged(levels, all_steps, step_window(kf_t_s)):
+        # the edits confirmed steps of the fix, and the pose bridged every large one
+        bias[:, :2], var_h, loc_sigma = _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels, sigma_u_h_m,
+                                                    prior_sigma_m, frozen)
+        detected = True
+        weight = sigma_w_h_m**2 / loc_sigma**2
+    else:
+        weight = sigma_w_h_m**2 / (sigma_w_h_m**2 + var_h)
     return DriftEstimate(
         offset_enu_m=offset,
         spread_m=spread,
@@ -532,7 +545,42 @@ def estimate_drift(
         edit_offsets_enu_m=d,
         edit_t_s=t_e,
         n_steps=int(len(steps.index)),
+        loc_sigma_h_m=loc_sigma,
     )
+
+
+def levels_bridged(levels: GnssLevels, steps: GnssSteps, window: int, big_m: float = 5.0, share: float = 0.75) -> bool:
+    """True when the pose bridged the fix's level jumps: at least ``share`` of the jumps over
+    ``big_m`` (two at least) are persistent steps of ``gnss_steps`` (within ``window`` keyframes).  A pose that
+    follows its fix through a low-pass (an INS that trusted the canyon) turns each jump into a
+    transient instead, and there the level model's smooth pose error does not hold."""
+    big = levels.jumps[np.hypot(*levels.jump_m.T) > big_m] if len(levels.jumps) else levels.jumps
+    if len(big) < 2 or len(steps.index) == 0:  # one jump is too little to tell bridging from following
+        return False
+    near = np.min(np.abs(big[:, None] - steps.index[None, :]), axis=1) <= window
+    return bool(np.mean(near) >= share)
+
+
+def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sigma_u: float, prior_sigma: float,
+                frozen) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Horizontal bias (k,2) such that g - bias = p~ + u - c (the level-corrected mean fix), the
+    variance of the level (k,), and the location term's horizontal sigma (k,) (inf: no fix)."""
+    y = p_rep_m[edit_kf, :2] - edit_c_m[:, :2]  # the pose's error at each edit
+    if len(y) >= 3:
+        sigma_e = max(float(np.sqrt(np.mean(0.5 * np.sum(y**2, axis=1)))), 1.0)
+    else:
+        sigma_e = prior_sigma
+    prev = frozen[3] if frozen is not None and len(frozen) > 3 else None
+    if prev is not None and prev.loc_sigma_h_m is not None and len(prev.loc_sigma_h_m) == len(kf_t_s):
+        # a live drag keeps the levels of the last full solve: re-solving them moves every
+        # location target of the level the edit sits in (and its neighbours) by millimetres
+        # to centimetres, which would turn each frame of a drag into a full solve
+        return prev.bias_enu_m[:, :2], prev.bias_sigma_m**2, prev.loc_sigma_h_m
+    c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e)
+    loc_sigma = np.where(levels.use, np.sqrt(levels.sigma_w_m**2 + var_c), np.inf)
+    u_single = (g_m - p_rep_m)[:, :2]
+    bias = np.where(levels.use[:, None], u_single - levels.u_m + c, 0.0)
+    return bias, np.where(np.isfinite(loc_sigma), var_c, 0.0), loc_sigma
 
 
 # ----------------------------------------------------------------------------- edits the shape cannot join
@@ -689,3 +737,291 @@ def edit_bends(
     extra_rel[step] = E[j] * evidence[step] / S[j]
     dragged[step[step > a[j]]] = True
     return extra_rel, dragged
+
+
+# ----------------------------------------------------------------------------- GNSS levels
+#
+# A GNSS/INS pose that bridged an urban canyon keeps its shape while the raw fix jumps onto
+# an offset and back (the ``canyon_ins`` case).  Per horizontal axis, at keyframe i:
+#
+#     u_i = mean over the keyframe's samples of (g - p~) = c_i - e_i + w_i
+#
+# with ``e`` the reported pose's error (smooth: its velocity error ``v`` wanders as a
+# Gauss-Markov process, e_i+1 = a e_i + dt v_i), ``c`` the fix's level (constant between
+# jumps, free at a jump) and ``w`` white noise.  An edit observes e directly (p~ - c_edit).
+# Because e is smooth and c is piecewise constant, u separates them: e's shape inside a
+# level, and each jump's size from e's continuity (position and velocity) across it; the
+# edits anchor the levels.  The location term then reads the level-corrected mean fix,
+# g~_i = p~_i + u_i - c_i, with the white sigma the run shows plus the level's uncertainty.
+
+LEVEL_WINDOW_S = 20.0  # line fits on each side of a candidate jump
+LEVEL_GAP_S = 3.0  # left out on each side: a fix moves onto its new level within seconds
+LEVEL_RAMP_S = 4.0  # a level may change within this many seconds of a found jump
+LEVEL_N_SIGMA = 5.0  # a jump stands this many sigmas out of the line fits' noise
+LEVEL_MIN_JUMP_M = 2.0  # and is at least this large
+POSE_VEL_SIGMA_MPS = 0.05  # velocity error of a GNSS/INS pose, 1 sigma per axis (a few cm/s)
+POSE_VEL_TAU_S = 30.0  # its correlation time
+POSE_ERR_TAU_S = 600.0  # the pose error returns to zero over this (aided by GNSS)
+LEVEL_WANDER_M2_PER_S = 1e-5  # a level's slow wander between jumps (0.13 m over 30 min)
+LEVEL_PRIOR_SIGMA_M = 10.0  # the first level, before any edit says otherwise
+LEVEL_JUMP_SIGMA_M = 15.0  # prior spread of a jump (canyon offsets are 5-20 m)
+
+
+@dataclass(frozen=True)
+class GnssLevels:
+    """What the fixes say about their own level, from the run alone (cached per keyframe set).
+
+    u_m (k,2): mean of g - p~ over the samples nearest each keyframe (east, north; NaN where none);
+    use (k,) bool: keyframes whose mean counts (a fix, not an outlier); sigma_w_m: white sigma of
+    u_m per keyframe and axis (from the MAD of its differences); jumps (j,) keyframes where the
+    level changes; jump_m (j,2) their sizes as found.
+    """
+
+    u_m: np.ndarray
+    use: np.ndarray
+    sigma_w_m: float
+    jumps: np.ndarray
+    jump_m: np.ndarray
+
+
+def keyframe_means(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> np.ndarray:
+    """Mean of u (n,d) over the samples nearer each keyframe time than its neighbours' (k,d); NaN where none."""
+    edges = 0.5 * (kf_t_s[1:] + kf_t_s[:-1])
+    b = np.searchsorted(edges, t_s, side="right")
+    ok = np.all(np.isfinite(u), axis=1)
+    k, d = len(kf_t_s), u.shape[1]
+    s = np.zeros((k, d))
+    n = np.bincount(b[ok], minlength=k).astype(float)
+    for j in range(d):
+        s[:, j] = np.bincount(b[ok], weights=u[ok, j], minlength=k)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n[:, None] > 0, s / n[:, None], np.nan)
+
+
+def white_sigma(u: np.ndarray) -> float:
+    """Per-axis sigma of the white part of u (k,d): MAD of consecutive differences / sqrt 2."""
+    ok = np.all(np.isfinite(u), axis=1)
+    du = np.diff(u[ok], axis=0)
+    if len(du) < 2:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(du - np.median(du, axis=0))) / np.sqrt(2.0))
+
+
+def line_breaks(u: np.ndarray, sigma_w: float, window: int, gap: int) -> tuple[np.ndarray, np.ndarray]:
+    """Discontinuity of u (k,2) at each keyframe, (k,2), and its z-score (k,).
+
+    Lines fitted (least squares, cumulative sums: O(k)) to u on [i-gap-window, i-gap) and on
+    (i+gap, i+gap+window], both extrapolated to i: a smooth wander of the pose's error meets
+    itself, a jump of the fix does not.  z divides the gap by the sigma of the two
+    extrapolations (white noise ``sigma_w``).
+    """
+    k = len(u)
+    ok = np.all(np.isfinite(u), axis=1).astype(float)
+    uf = np.where(ok[:, None] > 0, u, 0.0)
+    x = np.arange(k, dtype=float)
+
+    def cum(a):
+        return np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])
+
+    S0, S1, S2 = cum(ok), cum(ok * x), cum(ok * x * x)
+    Sy, Sxy = cum(uf * ok[:, None]), cum(uf * (ok * x)[:, None])
+
+    def extrapolate(lo, hi):
+        lo, hi = np.clip(lo, 0, k), np.clip(hi, 0, k)
+        n, sx, sxx = S0[hi] - S0[lo], S1[hi] - S1[lo], S2[hi] - S2[lo]
+        sy, sxy = Sy[hi] - Sy[lo], Sxy[hi] - Sxy[lo]
+        nn = np.maximum(n, 1.0)
+        xbar = sx / nn
+        sxx_c = sxx - n * xbar * xbar
+        good = (n >= max(window // 2, 3)) & (sxx_c > 1e-9)
+        slope = (sxy - sx[:, None] * sy / nn[:, None]) / np.where(good, sxx_c, 1.0)[:, None]
+        at = slope * (x - xbar)[:, None] + sy / nn[:, None]
+        var = sigma_w**2 * (1.0 / nn + (x - xbar) ** 2 / np.where(good, sxx_c, 1.0))
+        return np.where(good[:, None], at, np.nan), np.where(good, var, np.inf)
+
+    i = np.arange(k)
+    left, v_l = extrapolate(i - gap - window, i - gap)
+    right, v_r = extrapolate(i + gap + 1, i + gap + 1 + window)
+    D = right - left
+    with np.errstate(invalid="ignore"):
+        z = np.hypot(D[:, 0], D[:, 1]) / np.sqrt(np.maximum(v_l + v_r, 1e-12))
+    return D, np.where(np.isfinite(z), z, 0.0)
+
+
+def find_level_jumps(u: np.ndarray, sigma_w: float, window: int, gap: int,
+                     n_sigma: float = LEVEL_N_SIGMA, min_jump_m: float = LEVEL_MIN_JUMP_M,
+                     max_jumps: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """Jumps of the fix's level in u (k,2), greedily: the strongest break, taken out of u, then the next.
+
+    Taking each jump out before looking again keeps a jump from showing up a second time
+    where one line fit straddles it, and lets two jumps a short open-sky stretch apart both
+    be found.  Returns keyframes (j,) and sizes (j,2), in keyframe order.
+    """
+    v = np.array(u, dtype=float)
+    k = len(v)
+    x = np.arange(k)
+    picked, sizes = [], []
+    blocked = np.zeros(k, dtype=bool)
+    for _ in range(max_jumps):
+        D, z = line_breaks(v, sigma_w, window, gap)
+        mag = np.hypot(D[:, 0], D[:, 1])
+        ok = (z > n_sigma) & (mag > min_jump_m) & np.isfinite(mag) & ~blocked
+        if not ok.any():
+            break
+        j = int(np.flatnonzero(ok)[np.argmax(np.where(ok, mag, -1.0)[ok])])
+        j = _sharpest_split(v, j, window, gap)  # a line fit straddling the jump extrapolates further than the jump
+        if blocked[j] or not np.all(np.isfinite(D[j])):
+            blocked[max(j - gap, 0):j + gap + 1] = True
+            continue
+        picked.append(j)
+        sizes.append(D[j])
+        # the step leaves u (after the gap) and so does the ramp (the fix moving onto its new level);
+        # a step taken out at a slightly wrong place would otherwise leave a spike that looks like two more
+        v = v - (x > j + gap)[:, None] * D[j]
+        v[max(j - gap, 0):j + gap + 1] = np.nan
+        blocked[max(j - gap, 0):j + gap + 1] = True
+    order = np.argsort(picked, kind="stable")
+    return np.asarray(picked, dtype=np.int64)[order], np.asarray(sizes, dtype=float).reshape(-1, 2)[order]
+
+
+def _sharpest_split(u: np.ndarray, j: int, window: int, gap: int) -> int:
+    """The split near j (within ``window``) where the means of u over ``window // 2`` keyframes
+    on each side (``gap`` left out) differ most: where a step sits, flat on both sides."""
+    k = len(u)
+    h = max(window // 2, 2)
+    ok = np.all(np.isfinite(u), axis=1).astype(float)
+    cs = np.concatenate([np.zeros((1, 2)), np.cumsum(np.where(ok[:, None] > 0, u, 0.0), axis=0)])
+    cn = np.concatenate([[0.0], np.cumsum(ok)])
+    i = np.arange(max(j - window, 0), min(j + window, k - 1) + 1)
+    lo_a, lo_b = np.clip(i - gap - h, 0, k), np.clip(i - gap, 0, k)
+    hi_a, hi_b = np.clip(i + gap + 1, 0, k), np.clip(i + gap + 1 + h, 0, k)
+    n_l, n_r = cn[lo_b] - cn[lo_a], cn[hi_b] - cn[hi_a]
+    good = (n_l >= 2) & (n_r >= 2)
+    if not good.any():
+        return j
+    m_l = (cs[lo_b] - cs[lo_a]) / np.maximum(n_l, 1)[:, None]
+    m_r = (cs[hi_b] - cs[hi_a]) / np.maximum(n_r, 1)[:, None]
+    score = np.where(good, np.hypot(*(m_r - m_l).T), -1.0)
+    # a step scores the same at every split whose left-out gap holds it: take the middle of that plateau
+    top = np.flatnonzero(score >= 0.97 * score.max())
+    return int(i[top[len(top) // 2]])
+
+
+def gnss_levels(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> GnssLevels:
+    """The level model's data for keyframes at kf_t_s (k,), from all samples' u = g - p~ (n,2)."""
+    u_m = keyframe_means(t_s, u[:, :2], kf_t_s)
+    sigma_w = max(white_sigma(u_m), 0.05)
+    dt = float(np.median(np.diff(kf_t_s))) if len(kf_t_s) > 1 else 1.0
+    window = max(int(round(LEVEL_WINDOW_S / max(dt, 1e-9))), 5)
+    gap = max(int(round(LEVEL_GAP_S / max(dt, 1e-9))), 1)
+    ok = np.all(np.isfinite(u_m), axis=1)
+    use = ok.copy()
+    if ok.sum() > 9:
+        # outliers: far from the median of their neighbours (a 50 m fix among good ones)
+        from scipy.ndimage import median_filter
+
+        filled = _fill_gaps(u_m)
+        med = np.column_stack([median_filter(filled[:, j], 9, mode="nearest") for j in range(2)])
+        use &= np.hypot(*(filled - med).T) <= 5.0 * sigma_w + 1.0
+    jumps, jump_m = find_level_jumps(np.where(use[:, None], u_m, np.nan), sigma_w, window, gap) \
+        if len(kf_t_s) >= 2 * (window + gap) + 1 else (np.zeros(0, np.int64), np.zeros((0, 2)))
+    return GnssLevels(u_m, use, sigma_w, jumps, jump_m)
+
+
+def _level_blocks(t_s, levels: GnssLevels, edit_kf, sigma_u, sigma_e, ramp: int):
+    """Information matrix of the level model as 3x3 blocks: diagonal (k,3,3) and below it (k-1,3,3), states [e, v, c]."""
+    k = len(t_s)
+    dt = np.maximum(np.diff(t_s), 1e-6)
+    a = np.exp(-dt / POSE_ERR_TAU_S)
+    b = np.exp(-dt / POSE_VEL_TAU_S)
+    ie = 1.0 / (1e-6 * dt + 1e-9)  # e moves through v; a trace of its own noise keeps H definite
+    iv = 1.0 / (POSE_VEL_SIGMA_MPS**2 * (1.0 - b * b))
+    q_c = LEVEL_WANDER_M2_PER_S * dt
+    for j in levels.jumps:
+        lo, hi = max(int(j) - ramp, 0), min(int(j) + ramp, k - 1)
+        q_c[lo:hi] += LEVEL_JUMP_SIGMA_M**2 / max(hi - lo, 1)
+    ic = 1.0 / q_c
+    Dg = np.zeros((k, 3, 3))
+    L = np.zeros((k - 1, 3, 3))  # L[i] = H[i+1, i]
+    # e_i+1 - a e_i - dt v_i: alpha = (-a, -dt, 0) on i, beta = (1, 0, 0) on i+1
+    Dg[:-1, 0, 0] += a * a * ie
+    Dg[:-1, 0, 1] += a * dt * ie
+    Dg[:-1, 1, 0] += a * dt * ie
+    Dg[:-1, 1, 1] += dt * dt * ie
+    Dg[1:, 0, 0] += ie
+    L[:, 0, 0] += -a * ie
+    L[:, 0, 1] += -dt * ie
+    # v_i+1 - b v_i
+    Dg[:-1, 1, 1] += b * b * iv
+    Dg[1:, 1, 1] += iv
+    L[:, 1, 1] += -b * iv
+    # c_i+1 - c_i
+    Dg[:-1, 2, 2] += ic
+    Dg[1:, 2, 2] += ic
+    L[:, 2, 2] += -ic
+    Dg[0] += np.diag([1.0 / sigma_e**2, 1.0 / POSE_VEL_SIGMA_MPS**2, 1.0 / LEVEL_PRIOR_SIGMA_M**2])
+    # u_i = c_i - e_i
+    w = np.where(levels.use, 1.0 / levels.sigma_w_m**2, 0.0)
+    Dg[:, 0, 0] += w
+    Dg[:, 2, 2] += w
+    Dg[:, 0, 2] -= w
+    Dg[:, 2, 0] -= w
+    np.add.at(Dg[:, 0, 0], np.asarray(edit_kf, dtype=np.int64), 1.0 / sigma_u**2)
+    return Dg, L, w
+
+
+def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e: float,
+                 want_variance: bool = True):
+    """Smoothed level c (k,2) and pose error e (k,2) of the level model, and the variance of c (k,) (or None).
+
+    ``y_m`` (m,2) the pose's error at each edit (p~ - c_edit).  The means come from one
+    banded Cholesky solve (both axes at once: they share the information matrix); the
+    variances from a block-tridiagonal selected inversion (a pass each way, 3x3 blocks).
+    """
+    from scipy.linalg import solveh_banded
+
+    k = len(t_s)
+    dt = float(np.median(np.diff(t_s))) if k > 1 else 1.0
+    ramp = max(int(round(LEVEL_RAMP_S / max(dt, 1e-9))), 1)
+    Dg, L, w = _level_blocks(t_s, levels, edit_kf, sigma_u, sigma_e, ramp)
+    g = np.zeros((k, 3, 2))
+    u = np.where(levels.use[:, None], levels.u_m, 0.0)
+    g[:, 0] -= w[:, None] * u
+    g[:, 2] += w[:, None] * u
+    np.add.at(g[:, 0], np.asarray(edit_kf, dtype=np.int64), np.asarray(y_m, dtype=float) / sigma_u**2)
+    # upper banded storage, bandwidth 5: ab[5 + row - col, col]
+    n = 3 * k
+    ab = np.zeros((6, n))
+    for r in range(3):
+        for s in range(r, 3):
+            ab[5 + r - s, np.arange(k) * 3 + s] = Dg[:, r, s]
+    for r in range(3):  # H[3i + r, 3(i+1) + s] = L[i][s, r]
+        for s in range(3):
+            ab[5 + r - (3 + s), np.arange(1, k) * 3 + s] = L[:, s, r]
+    x = solveh_banded(ab, g.reshape(n, 2), check_finite=False)
+    x = x.reshape(k, 3, 2)
+    var_c = level_variance(Dg, L) if want_variance else None
+    return x[:, 2], x[:, 0], var_c
+
+
+def level_variance(Dg: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """Marginal variance of the level state (k,) from the block-tridiagonal information matrix.
+
+    Forward Schur complements ``S_i = D_i - L_i-1 S_i-1^-1 L_i-1^T``, then backwards
+    ``Sigma_i = S_i^-1 + G Sigma_i+1 G^T`` with ``G = S_i^-1 L_i^T`` (Rauch-Tung-Striebel in
+    information form).
+    """
+    k = len(Dg)
+    Sinv = np.empty_like(Dg)
+    Sinv[0] = np.linalg.inv(Dg[0])
+    for i in range(1, k):
+        Li = L[i - 1]
+        Sinv[i] = np.linalg.inv(Dg[i] - Li @ Sinv[i - 1] @ Li.T)
+    out = np.empty(k)
+    sig = Sinv[-1]
+    out[-1] = sig[2, 2]
+    for i in range(k - 2, -1, -1):
+        G = Sinv[i] @ L[i].T
+        sig = Sinv[i] + G @ sig @ G.T
+        out[i] = sig[2, 2]
+    return np.maximum(out, 0.0)

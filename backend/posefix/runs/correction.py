@@ -281,6 +281,7 @@ def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> Dri
     new = estimate_drift(
         t_s, p_rep, g_nan, edit_kf, c_m, has_alt, lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m,
         uc.sigma_v_m, cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate, steps=steps,
+        levels=problem.gnss_levels(index),
     )
     near, far = PREVIEW_DRIFT_KEYFRAMES
     dist = np.min(np.abs(np.arange(k)[:, None] - changed[None, :]), axis=1)
@@ -290,6 +291,8 @@ def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> Dri
         bias_enu_m=w[:, None] * new.bias_enu_m + (1 - w[:, None]) * base.drift.bias_enu_m,
         bias_sigma_m=w * new.bias_sigma_m + (1 - w) * base.drift.bias_sigma_m,
         weight=w * new.weight + (1 - w) * base.drift.weight,
+        loc_sigma_h_m=(None if new.loc_sigma_h_m is None or base.drift.loc_sigma_h_m is None
+                       else w * new.loc_sigma_h_m + (1 - w) * base.drift.loc_sigma_h_m),
     )
 
 
