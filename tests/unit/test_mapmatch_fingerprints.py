@@ -171,3 +171,41 @@ def test_fingerprint_file_keeps_the_calibration(tmp_path):
     back = load_fingerprints(tmp_path / "fp.npz")
     assert back.cov_scale == fp.cov_scale and back.outlier_frac == fp.outlier_frac
     assert np.allclose(back.scale_match_db, fp.scale_match_db) and np.allclose(back.scale_by_match, fp.scale_by_match)
+
+
+def test_a_scan_gives_at_most_one_peak_the_strongest():
+    fp = FingerprintMap(bssids=np.array(["a", "b", "c"]), p_xy_m=np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]),
+                        rssi_dbm=np.array([[-40, -90, -90], [-90, -45, -90], [-90, -90, -50]], dtype=np.float32))
+    assert set(fp.peak_xy_m) == {"a", "b", "c"}
+    scans = [(0.0, {"a": -60.0, "b": -60.0, "c": -70.0}),
+             (1000.0, {"a": -50.0, "b": -45.0, "c": -52.0}),  # all three peak here: b is strongest
+             (2000.0, {"a": -58.0, "b": -60.0, "c": -53.0}),  # c still rising: not a peak yet
+             (3000.0, {"a": -70.0, "b": -70.0, "c": -52.0})]  # c peaks alone
+    assert fp.scan_peaks(scans) == [(1000.0, "b"), (3000.0, "c")]
+
+
+def test_peak_sigma_is_calibrated_on_the_survey():
+    rng = np.random.default_rng(5)
+    walks = survey_walks(rng, noise_db=6.0)
+    assert build_fingerprints(walks, calibrate=False).peak_sigma_m == 3.0  # the uncalibrated default
+    fp = build_fingerprints(walks)
+    # Fresh walks along the rows halfway between the survey's, noisy like it: the distance
+    # from each detected peak's location to the walker is Rayleigh-like with the calibrated σ.
+    r = []
+    for y in np.linspace(3.0, 27.0, 8)[:-1] + 1.7:
+        t = np.arange(0, 36001, 1000)
+        pos = np.column_stack([2.0 + t / 1000.0, np.full(t.size, y)])
+        rr = rssi_at(pos, rng, 6.0)
+        scans = [(float(tm), {f"ap{i}": float(v) for i, v in enumerate(row)}) for tm, row in zip(t, rr)]
+        for tm, b in fp.scan_peaks(scans):
+            r.append(np.linalg.norm(pos[int(tm) // 1000] - fp.peak_xy_m[b]))
+    assert len(r) >= 10
+    ratio = np.median(r) / (fp.peak_sigma_m * np.sqrt(2.0 * np.log(2.0)))
+    assert 0.6 < ratio < 1.6, (np.median(r), fp.peak_sigma_m)
+
+
+def test_fingerprint_file_keeps_the_peak_sigma(tmp_path):
+    fp = build_fingerprints(survey_walks(np.random.default_rng(6), noise_db=6.0))
+    fp.peak_sigma_m = 7.25
+    save_fingerprints(fp, tmp_path / "fp.npz")
+    assert load_fingerprints(tmp_path / "fp.npz").peak_sigma_m == 7.25

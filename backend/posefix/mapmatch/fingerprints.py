@@ -35,11 +35,14 @@ same result within 0.3 m there.)
 f4 peaks: an access point's peak location is the survey position of its strongest
 reading, kept when that is at least ``peak_dbm`` (-55 dBm: within a few metres of it).
 While tracking, a scan where that access point reads ≥ ``peak_dbm`` and more than in the
-scans just before and after is a peak; its observation is (peak location, σ = 3 m).
-Measured on site1/F1 (fingerprints from the other half of the walks): 1 097 peaks in 1 214
-steps, the surveyed peak location a median 10.5 m from the walker (11 % within 3 m), so
-σ = 3 m is optimistic there; weight 0.5 vs 0 changed the (d) error by under 0.5 m on the
-training halves (13.07 vs 13.53 m, 17.94 vs 17.74 m), so it was left as is.
+scans just before and after is a peak, at most one a scan (the strongest: one scan is one
+place, however many access points peak in it); its observation is (peak location, σ) with
+σ calibrated on the survey (:func:`calibrate_peak_sigma`, the held-out peaks' Rayleigh
+median; 3 m uncalibrated). Measured on site1/F1 (leave-one-walk-out): 1 413 peaks in 403
+scans before the one-a-scan rule (6 a scan where any), the peak location a median 10.5 m
+from the walker (10 % within 3.2 m, 10 % beyond 29 m), so the calibrated σ is 9.7-10.6 m.
+With σ = 3 m f4 outweighed f3 by hundreds of nats on a walk (06b57669: the wrong
+placement 23 m away scored ~180 nats better on f4 while f3 preferred the truth by 26).
 """
 
 from __future__ import annotations
@@ -191,17 +194,30 @@ class FingerprintMap:
         return out
 
     def peaks_in_walk(self, walk: Walk):
-        """[(t_ms, peak_xy (2,), sigma_m)] for RSSI peaks of known access points (f4)."""
+        """[(t_ms, peak_xy (2,), sigma_m)] for RSSI peaks of known access points (f4): at most
+        one a scan (:meth:`scan_peaks`)."""
         scans = wifi_scans(walk, self.max_age_ms, self.scan_time)
+        return [(t_ms, self.peak_xy_m[b], self.peak_sigma_m) for t_ms, b in self.scan_peaks(scans)]
+
+    def scan_peaks(self, scans: list[tuple[float, dict[str, float]]]) -> list[tuple[float, str]]:
+        """[(t_ms, bssid)] of the scans (time-ordered ``(t_ms, {bssid: dBm})``) where a known
+        access point peaks: it reads ≥ ``peak_dbm`` and more than in the scans just before and
+        after. One a scan, the strongest: the readings of one scan were all taken at one
+        place, so several access points peaking in it are one observation of that place, not
+        several (site1/F1 has 6 peaking access points a scan on average, up to 34), and the
+        strongest is the one the walker is nearest to."""
         out = []
         for j, (t_ms, scan) in enumerate(scans):
+            best, best_r = None, -np.inf
             for b, r in scan.items():
-                if b not in self.peak_xy_m or r < self.peak_dbm:
+                if b not in self.peak_xy_m or r < self.peak_dbm or r <= best_r:
                     continue
                 before = scans[j - 1][1].get(b, MISSING_DBM) if j > 0 else MISSING_DBM
                 after = scans[j + 1][1].get(b, MISSING_DBM) if j + 1 < len(scans) else MISSING_DBM
                 if r > before and r >= after:
-                    out.append((t_ms, self.peak_xy_m[b], self.peak_sigma_m))
+                    best, best_r = b, r
+            if best is not None:
+                out.append((t_ms, best))
         return out
 
 
@@ -259,7 +275,7 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
     ``"knn"`` (default), ``"hybrid"`` or ``"pathloss"``; ``vertices_xy_m`` may be given here
     or at prediction time; ``max_age_ms``, ``scan_time``: scan grouping
     (:func:`posefix.mapmatch.sensors.wifi_scans`); ``calibrate``: fit Σ's scale and the
-    outlier rate (:func:`calibrate_covariance`); ``options``: other ``FingerprintMap`` fields."""
+    outlier rate (:func:`calibrate_covariance`) and f4's σ (:func:`calibrate_peak_sigma`); ``options``: other ``FingerprintMap`` fields."""
     pos, scans, wid = [], [], []
     for iw, w in enumerate(walks):
         wp = w.waypoints
@@ -283,6 +299,7 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
                         walk_id=np.asarray(wid, dtype=np.int32), **options)
     if calibrate:
         fp.cov_scale, fp.outlier_frac, fp.scale_match_db, fp.scale_by_match = calibrate_covariance(fp)
+        fp.peak_sigma_m = calibrate_peak_sigma(fp)
     return fp
 
 
@@ -353,12 +370,59 @@ def calibrate_covariance(fp: FingerprintMap, folds: int = 5, vertices_xy_m: np.n
     return scale, float(np.clip(outlier, 0.0, 0.5)), d_db, s_by_d
 
 
+RAYLEIGH_MEDIAN = np.sqrt(2.0 * np.log(2.0))  # median length of a 2-D N(0, σ² I) error, in σ
+
+
+def _row_scan(bssids: list[str], row: np.ndarray) -> dict[str, float]:
+    """One fingerprint row (A,) dBm back to a scan ``{bssid: dBm}`` of the access points heard."""
+    heard = np.nonzero(row > MISSING_DBM)[0]
+    return {bssids[a]: float(row[a]) for a in heard}
+
+
+def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5, min_peaks: int = 10) -> float:
+    """f4's σ (m) that makes the peak observations honest on the survey itself.
+
+    The survey walks are split into ``folds`` groups (by ``fp.walk_id``, as in
+    :func:`calibrate_covariance`); each group's scans, in their walk's order, are searched
+    for peaks (:meth:`FingerprintMap.scan_peaks`) against the peak locations of a map of the
+    other groups, and each peak's distance r to the scan's surveyed position is measured.
+    For a 2-D isotropic Gaussian error r has median σ·√(2 ln 2), so
+    ``σ = median(r) / √(2 ln 2)`` (the median: the bulk, as for f3's scale). On site1/F1
+    the held-out median r is about 10.5 m, i.e. σ ≈ 9 m, where 3 m had been assumed.
+
+    Returns ``fp.peak_sigma_m`` unchanged without two survey walks or with fewer than
+    ``min_peaks`` held-out peaks.
+    """
+    if fp.walk_id is None or np.unique(fp.walk_id).size < 2:
+        return fp.peak_sigma_m
+    ids = np.unique(fp.walk_id)
+    group = {w: i % folds for i, w in enumerate(ids)}
+    g = np.array([group[w] for w in fp.walk_id.tolist()])
+    names = fp.bssids.tolist()
+    r = []
+    for k in np.unique(g):
+        tr = g != k
+        sub = FingerprintMap(bssids=fp.bssids, p_xy_m=fp.p_xy_m[tr], rssi_dbm=fp.rssi_dbm[tr], method="knn",
+                             peak_dbm=fp.peak_dbm)
+        for w in ids[[group[i] == k for i in ids]]:
+            rows = np.nonzero(fp.walk_id == w)[0]  # in the walk's time order (build_fingerprints)
+            scans = [(float(i), _row_scan(names, fp.rssi_dbm[i])) for i in rows]
+            for i, b in sub.scan_peaks(scans):
+                r.append(float(np.linalg.norm(fp.p_xy_m[int(i)] - sub.peak_xy_m[b])))
+    if len(r) < min_peaks:
+        return fp.peak_sigma_m
+    return float(np.median(r)) / RAYLEIGH_MEDIAN
+
+
 def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
-    """Write ``.npz`` (members ``format``, ``version``, ``bssids``, ``p_xy_m``, ``rssi_dbm``); returns bytes."""
+    """Write ``.npz`` (members ``format``, ``version``, ``bssids``, ``p_xy_m``, ``rssi_dbm`` and the
+    calibration: ``cov_scale``, ``outlier_frac``, ``peak_sigma_m``, ``scale_match_db``,
+    ``scale_by_match``); returns bytes."""
     with open(path, "wb") as fh:
         np.savez_compressed(fh, format=np.array("posefix-fingerprints"), version=np.array(2, dtype=np.int32),
                             bssids=fp.bssids.astype(str), p_xy_m=fp.p_xy_m, rssi_dbm=fp.rssi_dbm,
                             cov_scale=np.array(fp.cov_scale), outlier_frac=np.array(fp.outlier_frac),
+                            peak_sigma_m=np.array(fp.peak_sigma_m),
                             scale_match_db=np.asarray(fp.scale_match_db if fp.scale_match_db is not None else [], float),
                             scale_by_match=np.asarray(fp.scale_by_match if fp.scale_by_match is not None else [], float))
     return Path(path).stat().st_size
@@ -373,12 +437,14 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
         if "format" not in z.files or str(z["format"]) != "posefix-fingerprints":
             raise ValueError(f"{path}:0: field format: not a posefix fingerprint file")
         # Version 1 files have no calibration: Σ as predicted (scale 1), no outliers.
+        table: dict = {}
         scale = float(z["cov_scale"]) if "cov_scale" in z.files else 1.0
         eps = float(z["outlier_frac"]) if "outlier_frac" in z.files else 0.0
-        table = {}
+        if "peak_sigma_m" in z.files:  # files written before f4's calibration keep the 3 m default
+            table["peak_sigma_m"] = float(z["peak_sigma_m"])
         if "scale_match_db" in z.files and z["scale_match_db"].size:
             if z["scale_match_db"].shape != z["scale_by_match"].shape:
                 raise ValueError(f"{path}:0: field scale_by_match: shape differs from scale_match_db")
-            table = dict(scale_match_db=z["scale_match_db"], scale_by_match=z["scale_by_match"])
+            table.update(scale_match_db=z["scale_match_db"], scale_by_match=z["scale_by_match"])
         return FingerprintMap(bssids=z["bssids"], p_xy_m=z["p_xy_m"], rssi_dbm=z["rssi_dbm"], method=method,
                               cov_scale=scale, outlier_frac=eps, **table)
