@@ -311,3 +311,23 @@ def test_a_pose_that_bridged_canyon_offsets_is_corrected_by_the_level_model():
 
     assert rmse(p) < 0.7 * rmse(naive_positions(problem, sim)), (rmse(p), rmse(naive_positions(problem, sim)))
     assert rmse(p) < rmse(problem.p_enu_m) / 4.0
+
+
+def test_the_level_model_takes_a_pose_that_bridged_the_jumps_but_not_one_that_followed_them():
+    from posefix.core.drift import gnss_levels, levels_bridged
+
+    k = 900
+    t = np.arange(k, dtype=float)
+    rng = np.random.default_rng(8)
+    c = np.zeros((k, 2))
+    for a, b, off in ((100, 250, [9.0, -7.0]), (400, 520, [-6.0, 8.0]), (650, 800, [12.0, 3.0])):
+        c[a:b] += off
+    e = np.column_stack([1.5 * np.sin(t / 80.0), 1.0 * np.cos(t / 110.0)])
+    followed = np.zeros_like(c)  # an INS that trusted its fix: a 10 s low-pass of the level
+    for i in range(1, k):
+        followed[i] = followed[i - 1] + (c[i] - followed[i - 1]) / 10.0
+    noise = rng.normal(0.0, 0.6, (k, 2))
+    bridged = gnss_levels(t, c - e + noise, t)
+    follows = gnss_levels(t, c - followed - e + noise, t)
+    assert len(bridged.jumps) >= 6 and levels_bridged(bridged, t)
+    assert not levels_bridged(follows, t)

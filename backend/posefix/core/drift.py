@@ -36,6 +36,12 @@ neighbouring keyframes (the reported pose keeps its local shape, so g - p~ varie
    left its level in between: ``gnss_transient``), the relative variance of that interval is
    raised to what the edits show, placed where the error most likely changed
    (``shape_change_evidence``), and the fixes inside are dropped.
+5. A pose that bridged urban-canyon offsets (``gnss_levels``, ``levels_bridged``): where the
+   fix jumps onto levels and back while the pose keeps its shape, a joint smoother of the
+   fix's piecewise-constant level and the pose's smooth error (section "GNSS levels") gives
+   the level at every keyframe; the location term then reads the level-corrected mean of
+   the keyframe's fixes with the run's own white-noise sigma, so the fixes between edits
+   measure the pose's wander instead of being dropped.
 
 Vertical: only 3-D edits observe the vertical bias; without them the vertical is left alone.
 """
@@ -524,7 +530,7 @@ def estimate_drift(
     if np.any(suspect > 0):
         detected = True
     loc_sigma = None
-    if levels is not None and len(steps.index) and levels_bridged(levels, all_steps, step_window(kf_t_s)):
+    if levels is not None and len(steps.index) and levels_bridged(levels, kf_t_s):
         # the edits confirmed steps of the fix, and the pose bridged every large one
         bias[:, :2], var_h, loc_sigma = _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels, sigma_u_h_m,
                                                     prior_sigma_m, frozen)
@@ -549,16 +555,68 @@ def estimate_drift(
     )
 
 
-def levels_bridged(levels: GnssLevels, steps: GnssSteps, window: int, big_m: float = 5.0, share: float = 0.75) -> bool:
+def levels_bridged(levels: GnssLevels, kf_t_s: np.ndarray, big_m: float = 5.0, share: float = 0.75) -> bool:
     """True when the pose bridged the fix's level jumps: at least ``share`` of the jumps over
-    ``big_m`` (two at least) are persistent steps of ``gnss_steps`` (within ``window`` keyframes).  A pose that
-    follows its fix through a low-pass (an INS that trusted the canyon) turns each jump into a
-    transient instead, and there the level model's smooth pose error does not hold."""
-    big = levels.jumps[np.hypot(*levels.jump_m.T) > big_m] if len(levels.jumps) else levels.jumps
-    if len(big) < 2 or len(steps.index) == 0:  # one jump is too little to tell bridging from following
-        return False
-    near = np.min(np.abs(big[:, None] - steps.index[None, :]), axis=1) <= window
-    return bool(np.mean(near) >= share)
+    ``big_m`` (two at least) persist, the level of u 20-40 s after the jump still departing
+    from the level before it by more than half the jump.
+
+    A pose that follows its fix through a low-pass (an INS that trusted the canyon) catches up
+    within seconds, so u = g - p~ shows a transient that decays, and there the level model's
+    smooth pose error does not hold; a bridged pose leaves the jump in u for as long as the
+    fix keeps its level.  Jumps with another one too close after them to tell are skipped.
+    """
+    k = len(kf_t_s)
+    dt = float(np.median(np.diff(kf_t_s))) if k > 1 else 1.0
+    W = max(int(round(LEVEL_WINDOW_S / max(dt, 1e-9))), 5)
+    gap = max(int(round(LEVEL_GAP_S / max(dt, 1e-9))), 1)
+    u = np.where(levels.use[:, None], levels.u_m, np.nan)
+    nxt = np.append(levels.jumps[1:], k)
+    prv = np.insert(levels.jumps[:-1], 0, 0)
+    votes = []
+    for j, J, a, b in zip(levels.jumps, levels.jump_m, prv, nxt):
+        if np.hypot(*J) <= big_m or b - j < gap + 2 * W or j - a < gap + W // 2:
+            continue
+        before = np.nanmedian(u[j - gap - W // 2:j - gap], axis=0)
+        soon = np.nanmedian(u[j + gap:j + gap + W // 2], axis=0)
+        late = np.nanmedian(u[j + gap + W:j + gap + 2 * W], axis=0)
+        if not (np.all(np.isfinite(before)) and np.all(np.isfinite(soon)) and np.all(np.isfinite(late))):
+            continue
+        votes.append(np.hypot(*(late - soon)) < 0.5 * np.hypot(*(soon - before)))
+    return len(votes) >= 2 and float(np.mean(votes)) >= share
+
+
+def open_sky_information(kf_t_s: np.ndarray, c_m: np.ndarray, var_c: np.ndarray, jumps: np.ndarray) -> np.ndarray:
+    """(k,) information (1/m^2) on a zero level, one keyframe per level (between jumps).
+
+    Between canyons the receiver sees open sky and its fix is unbiased to about a metre (the
+    location term trusts exactly that where no edit says otherwise).  Each level is open sky
+    or a canyon offset: a mixture prior ``OPEN_SKY_SHARE N(0, OPEN_SKY_SIGMA_M^2) +
+    (1 - OPEN_SKY_SHARE) N(0, CANYON_LEVEL_SIGMA_M^2)`` per axis.  From the level the fixes and
+    edits alone give (mean ``c_s``, variance ``v_s`` over its inner keyframes), the chance it
+    is open sky is ``r_s``; the level then gets ``r_s / OPEN_SKY_SIGMA_M^2`` of information on
+    zero (one step of expectation-maximisation).
+    """
+    k = len(kf_t_s)
+    info = np.zeros(k)
+    dt = float(np.median(np.diff(kf_t_s))) if k > 1 else 1.0
+    ramp = max(int(round(LEVEL_RAMP_S / max(dt, 1e-9))), 1)
+    bounds = np.concatenate([[0], np.asarray(jumps, dtype=np.int64), [k]])
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        a, b = lo + ramp, hi - ramp
+        if b - a < 2:
+            continue
+        c_s = np.mean(c_m[a:b], axis=0)
+        v_s = float(np.mean(var_c[a:b]))
+
+        def log_n(sig2):  # log of a 2-D N(c_s; 0, (sig2 + v_s) I), constants dropped
+            s2 = sig2 + v_s
+            return -0.5 * float(c_s @ c_s) / s2 - np.log(s2)
+
+        lo_o = np.log(OPEN_SKY_SHARE) + log_n(OPEN_SKY_SIGMA_M**2)
+        lo_c = np.log(1.0 - OPEN_SKY_SHARE) + log_n(CANYON_LEVEL_SIGMA_M**2)
+        r = 1.0 / (1.0 + np.exp(min(lo_c - lo_o, 700.0)))
+        info[(a + b) // 2] = r / OPEN_SKY_SIGMA_M**2
+    return info
 
 
 def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sigma_u: float, prior_sigma: float,
@@ -577,6 +635,9 @@ def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sig
         # to centimetres, which would turn each frame of a drag into a full solve
         return prev.bias_enu_m[:, :2], prev.bias_sigma_m**2, prev.loc_sigma_h_m
     c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e)
+    info = open_sky_information(kf_t_s, c, var_c, levels.jumps)
+    if np.any(info > 0):
+        c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, level_info=info)
     loc_sigma = np.where(levels.use, np.sqrt(levels.sigma_w_m**2 + var_c), np.inf)
     u_single = (g_m - p_rep_m)[:, :2]
     bias = np.where(levels.use[:, None], u_single - levels.u_m + c, 0.0)
@@ -765,6 +826,9 @@ POSE_ERR_TAU_S = 600.0  # the pose error returns to zero over this (aided by GNS
 LEVEL_WANDER_M2_PER_S = 1e-5  # a level's slow wander between jumps (0.13 m over 30 min)
 LEVEL_PRIOR_SIGMA_M = 10.0  # the first level, before any edit says otherwise
 LEVEL_JUMP_SIGMA_M = 15.0  # prior spread of a jump (canyon offsets are 5-20 m)
+OPEN_SKY_SIGMA_M = 1.0  # bias of an open-sky fix, 1 sigma per axis
+CANYON_LEVEL_SIGMA_M = 12.0  # spread of a canyon offset's level, per axis
+OPEN_SKY_SHARE = 0.5  # prior share of open-sky levels
 
 
 @dataclass(frozen=True)
@@ -971,10 +1035,11 @@ def _level_blocks(t_s, levels: GnssLevels, edit_kf, sigma_u, sigma_e, ramp: int)
 
 
 def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e: float,
-                 want_variance: bool = True):
+                 want_variance: bool = True, level_info: np.ndarray | None = None):
     """Smoothed level c (k,2) and pose error e (k,2) of the level model, and the variance of c (k,) (or None).
 
-    ``y_m`` (m,2) the pose's error at each edit (p~ - c_edit).  The means come from one
+    ``y_m`` (m,2) the pose's error at each edit (p~ - c_edit); ``level_info`` (k,) extra
+    information (1/m^2) on the level being zero at each keyframe (``open_sky_information``).  The means come from one
     banded Cholesky solve (both axes at once: they share the information matrix); the
     variances from a block-tridiagonal selected inversion (a pass each way, 3x3 blocks).
     """
@@ -984,6 +1049,8 @@ def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e:
     dt = float(np.median(np.diff(t_s))) if k > 1 else 1.0
     ramp = max(int(round(LEVEL_RAMP_S / max(dt, 1e-9))), 1)
     Dg, L, w = _level_blocks(t_s, levels, edit_kf, sigma_u, sigma_e, ramp)
+    if level_info is not None:
+        Dg[:, 2, 2] += level_info
     g = np.zeros((k, 3, 2))
     u = np.where(levels.use[:, None], levels.u_m, 0.0)
     g[:, 0] -= w[:, None] * u
