@@ -377,7 +377,7 @@ class Problem:
                 lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
                 cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
                 frozen=frozen, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan),
-                levels=self.gnss_levels(act_rows),
+                levels=lambda: self.gnss_levels(act_rows),
             )
         else:
             drift = no_drift(len(act_rows))

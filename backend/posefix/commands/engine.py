@@ -241,6 +241,9 @@ def _print_correction_summary(run, edits, result, output: Path, elapsed_s: float
         if off.size >= 2 and np.all(np.isfinite(off[:2])):
             sp = f", spread {float(spread):.2f} m" if spread is not None and np.isfinite(spread) else ""
             typer.echo(f"drift implied by the edits: east {off[0]:+.2f} m, north {off[1]:+.2f} m{sp}")
+    if getattr(drift, "loc_sigma_h_m", None) is not None:
+        typer.echo("the raw GNSS jumps onto urban-canyon levels the pose bridged: levels taken out of the "
+                   "location term (drift.gnss_levels)")
     for flag in getattr(result, "flags", []) or []:
         typer.echo(f"flagged: keyframe {flag.index}: {flag.reason}: {flag.message}")
 

@@ -98,6 +98,7 @@ class DriftEstimate:
             "sigma_b_m": float(self.sigma_b_m),
             "tau_s": float(self.tau_s),
             "n_steps": int(self.n_steps),
+            "gnss_levels": self.loc_sigma_h_m is not None,
             "detected": bool(self.detected),
             "n_edits": int(len(self.edit_t_s)),
             "max_bias_m": float(np.max(np.hypot(*self.bias_enu_m[:, :2].T))) if len(self.bias_enu_m) else 0.0,
@@ -433,7 +434,7 @@ def estimate_drift(
     window: int = 5,
     frozen: tuple | None = None,
     steps: GnssSteps | None = None,
-    levels: GnssLevels | None = None,
+    levels=None,
 ) -> DriftEstimate:
     """Fit the bias model to the edits; see the module docstring.
 
@@ -444,7 +445,8 @@ def estimate_drift(
     one more edit changes the bias only around it); a fourth element, the DriftEstimate
     of that solve, keeps its GNSS levels (a live drag).  ``steps`` passes the
     result of ``gnss_steps`` when the caller keeps it between solves (it depends on the run
-    only).  ``levels`` (``gnss_levels``, also the run's only) enables the level model where
+    only).  ``levels`` (``gnss_levels``, also the run's only, or a function returning it when
+    needed) enables the level model where
     the fix shows persistent jumps the pose does not (see the "GNSS levels" section).
     """
     k = len(kf_t_s)
@@ -530,7 +532,9 @@ def estimate_drift(
     if np.any(suspect > 0):
         detected = True
     loc_sigma = None
-    if levels is not None and len(steps.index) and levels_bridged(levels, kf_t_s):
+    if callable(levels) and len(steps.index):
+        levels = levels()  # found from every sample once per run: only when the edits confirmed steps
+    if isinstance(levels, GnssLevels) and len(steps.index) and levels_bridged(levels, kf_t_s):
         # the edits confirmed steps of the fix, and the pose bridged every large one
         bias[:, :2], var_h, loc_sigma = _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels, sigma_u_h_m,
                                                     prior_sigma_m, frozen)
@@ -923,27 +927,32 @@ def find_level_jumps(u: np.ndarray, sigma_w: float, window: int, gap: int,
     """
     v = np.array(u, dtype=float)
     k = len(v)
-    x = np.arange(k)
     picked, sizes = [], []
     blocked = np.zeros(k, dtype=bool)
+    D, z = line_breaks(v, sigma_w, window, gap)
+    reach = window + 2 * gap + 1  # breaks whose fits read u around a jump taken out (and its blanked ramp)
     for _ in range(max_jumps):
-        D, z = line_breaks(v, sigma_w, window, gap)
         mag = np.hypot(D[:, 0], D[:, 1])
         ok = (z > n_sigma) & (mag > min_jump_m) & np.isfinite(mag) & ~blocked
         if not ok.any():
             break
-        j = int(np.flatnonzero(ok)[np.argmax(np.where(ok, mag, -1.0)[ok])])
-        j = _sharpest_split(v, j, window, gap)  # a line fit straddling the jump extrapolates further than the jump
+        j0 = int(np.flatnonzero(ok)[np.argmax(mag[ok])])
+        j = _sharpest_split(v, j0, window, gap)  # a line fit straddling the jump extrapolates further than the jump
         if blocked[j] or not np.all(np.isfinite(D[j])):
-            blocked[max(j - gap, 0):j + gap + 1] = True
+            blocked[max(j0 - gap, 0):j0 + gap + 1] = True  # the break leads nowhere new: never again
             continue
         picked.append(j)
-        sizes.append(D[j])
+        sizes.append(D[j].copy())
         # the step leaves u (after the gap) and so does the ramp (the fix moving onto its new level);
         # a step taken out at a slightly wrong place would otherwise leave a spike that looks like two more
-        v = v - (x > j + gap)[:, None] * D[j]
+        v[j + gap + 1:] -= D[j]
         v[max(j - gap, 0):j + gap + 1] = np.nan
         blocked[max(j - gap, 0):j + gap + 1] = True
+        # only breaks whose fits reach across j changed: recompute those (O(window) per jump, not O(k))
+        lo, hi = max(j - reach, 0), min(j + reach + 1, k)
+        a, b = max(lo - reach, 0), min(hi + reach, k)
+        D_s, z_s = line_breaks(v[a:b], sigma_w, window, gap)
+        D[lo:hi], z[lo:hi] = D_s[lo - a:hi - a], z_s[lo - a:hi - a]
     order = np.argsort(picked, kind="stable")
     return np.asarray(picked, dtype=np.int64)[order], np.asarray(sizes, dtype=float).reshape(-1, 2)[order]
 

@@ -281,7 +281,7 @@ def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> Dri
     new = estimate_drift(
         t_s, p_rep, g_nan, edit_kf, c_m, has_alt, lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m,
         uc.sigma_v_m, cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate, steps=steps,
-        levels=problem.gnss_levels(index),
+        levels=lambda: problem.gnss_levels(index),
     )
     near, far = PREVIEW_DRIFT_KEYFRAMES
     dist = np.min(np.abs(np.arange(k)[:, None] - changed[None, :]), axis=1)
