@@ -209,3 +209,7 @@ def test_fingerprint_file_keeps_the_peak_sigma(tmp_path):
     fp.peak_sigma_m = 7.25
     save_fingerprints(fp, tmp_path / "fp.npz")
     assert load_fingerprints(tmp_path / "fp.npz").peak_sigma_m == 7.25
+    fp.peak_sigma_m = 0.0
+    save_fingerprints(fp, tmp_path / "bad.npz")
+    with pytest.raises(ValueError, match=r"bad\.npz:0: field peak_sigma_m"):
+        load_fingerprints(tmp_path / "bad.npz")

@@ -388,7 +388,7 @@ def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5, min_peaks: int = 10
     other groups, and each peak's distance r to the scan's surveyed position is measured.
     For a 2-D isotropic Gaussian error r has median σ·√(2 ln 2), so
     ``σ = median(r) / √(2 ln 2)`` (the median: the bulk, as for f3's scale). On site1/F1
-    the held-out median r is about 10.5 m, i.e. σ ≈ 9 m, where 3 m had been assumed.
+    the held-out median r is about 11-12 m, i.e. σ ≈ 10 m, where 3 m had been assumed.
 
     Returns ``fp.peak_sigma_m`` unchanged without two survey walks or with fewer than
     ``min_peaks`` held-out peaks.
@@ -441,7 +441,10 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
         scale = float(z["cov_scale"]) if "cov_scale" in z.files else 1.0
         eps = float(z["outlier_frac"]) if "outlier_frac" in z.files else 0.0
         if "peak_sigma_m" in z.files:  # files written before f4's calibration keep the 3 m default
-            table["peak_sigma_m"] = float(z["peak_sigma_m"])
+            sig = float(z["peak_sigma_m"])
+            if not (np.isfinite(sig) and sig > 0.0):
+                raise ValueError(f"{path}:0: field peak_sigma_m: must be a positive number of metres, got {sig}")
+            table["peak_sigma_m"] = sig
         if "scale_match_db" in z.files and z["scale_match_db"].size:
             if z["scale_match_db"].shape != z["scale_by_match"].shape:
                 raise ValueError(f"{path}:0: field scale_by_match: shape differs from scale_match_db")
