@@ -18,8 +18,9 @@ Rows (error at the surveyed waypoints, metres):
        vertices, for every waypoint: what "no information at all" scores on this floor
 Below the table, for (c): the median 1σ major semi-axis of the smoothed start marginal
 p(y_0 | whole walk): how many metres the walk's shape leaves the start undetermined; for
-(d) and WiFi alone: the error split by how far the truth is from the nearest scan of the
-other walks (the survey's coverage).
+(d): a 90 % interval of its mean with the walks resampled (how much the figure depends on
+which walks are in the set); for (d) and WiFi alone: the error split by how far the truth is from the
+nearest scan of the other walks (the survey's coverage).
 
 Parameters are never fitted on the walk being scored: two folds (even / odd walks), each
 tracked with the heading bias and the f1/f2 weights learned on the other fold. ``--quick``
@@ -154,6 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     sc = np.asarray(start_sigma_c)
     print(f"(c) start left undetermined by the walk's shape: smoothed start marginal p(y_0 | walk) has a 1σ "
           f"major semi-axis of median {np.median(sc):.1f} m; under 3 m in {np.sum(sc < 3.0)} of {sc.size} walks")
+    lo_d, hi_d = walk_bootstrap(errs["d"])
+    print(f"(d) mean with the {len(errs['d'])} walks resampled with replacement: 90 % interval "
+          f"{lo_d:.2f}-{hi_d:.2f} m (which walks are in the set moves the mean this much)")
     for k in ("d", "wifi"):
         e, c = np.concatenate(errs[k]), np.concatenate(cover[k])
         parts = []
@@ -195,6 +199,17 @@ def bench_suggestions(repeats: int = 3) -> int:
     print(f"  cache cleared (rebuild every call, the old behaviour): {c:6.2f} s")
     print(f"  repeated (drivable area cached):                       {w:6.2f} s  ({w / c:4.2f}× the rebuild)")
     return 0
+
+
+def walk_bootstrap(errors: list[np.ndarray], n_boot: int = 2000, seed: int = 0) -> tuple[float, float]:
+    """5 and 95 % points of the pooled waypoint mean when the walks (each an array of its
+    waypoint errors) are resampled with replacement: how much the mean moves with which walks
+    happen to be in the set (walks differ far more than waypoints within a walk)."""
+    sums = np.array([e.sum() for e in errors])
+    counts = np.array([e.size for e in errors])
+    idx = np.random.default_rng(seed).integers(0, len(errors), size=(n_boot, len(errors)))
+    means = sums[idx].sum(axis=1) / np.maximum(counts[idx].sum(axis=1), 1)
+    return float(np.percentile(means, 5)), float(np.percentile(means, 95))
 
 
 def nearest_m(p_xy_m: np.ndarray, survey_xy_m: np.ndarray) -> np.ndarray:
