@@ -103,6 +103,47 @@ class TestPreview:
             pos = np.array(body["positions"])
             assert 3.0 < (pos[k, 0] - xy[k, 0]) / METRE_LON <= 5.01
 
+    def test_a_run_whose_pose_bridged_canyon_offsets_gets_the_level_model_and_local_drags(self, client, users, app, tmp_path):
+        import time
+
+        from posefix.core.simulate import simulate
+        from posefix.io.csv import write_csv
+        from posefix.runs import correction
+
+        sim = simulate(duration_s=1200.0, rate_hz=2.0, edit_every_s=100.0, seed=11, regime="canyon_ins")
+        write_csv(sim.run, tmp_path / "run.csv")
+        r = upload(client, users["client"], (tmp_path / "run.csv").read_bytes())
+        assert r.status_code == 201, r.text
+        rid = r.json()["id"]
+        fc, xy = kf_coords(client, users["admin"], rid)
+        t_kf = np.array([f["properties"]["t"] for f in fc["features"]])
+        moves = [{"index": int(np.argmin(np.abs(t_kf - e.t_s))), "lon": e.lon_deg, "lat": e.lat_deg} for e in sim.edits]
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": moves}, headers=users["admin"])
+        assert r.status_code == 202, r.text
+        assert wait_job(app, r.json()["job_id"], timeout=120)["status"] == "succeeded"
+        fc, xy = kf_coords(client, users["admin"], rid)
+        assert fc["revision"] == 1 and fc["drift"]["gnss_levels"] is True, fc["drift"]
+        deadline = time.monotonic() + 60
+        while correction.PROBLEMS.solution(rid, fc["rules"], 1) is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        k = 300
+        body = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 1, "moves": [
+            {"index": k, "lon": xy[k, 0] + 4 * METRE_LON, "lat": xy[k, 1]}]}, headers=users["admin"]).json()
+        info = body["preview"]
+        assert info["mode"] == "local" and info["full_solve"] is False, info
+        a, b = info["window"]
+        assert a <= k <= b and b - a + 1 < len(xy) / 2
+        pos = np.array(body["positions"])
+        # the commit re-solves the levels with the new edit: the preview lands where the commit does
+        # (short of the 4 m: the edits either side, with the fixes' level between, hold it back)
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 1, "moves": [
+            {"index": k, "lon": xy[k, 0] + 4 * METRE_LON, "lat": xy[k, 1]}]}, headers=users["admin"])
+        assert wait_job(app, r.json()["job_id"], timeout=120)["status"] == "succeeded"
+        _, xy2 = kf_coords(client, users["admin"], rid, revision=2)
+        assert 2.0 < (xy2[k, 0] - xy[k, 0]) / METRE_LON <= 4.01
+        assert abs(pos[k, 0] - xy2[k, 0]) / METRE_LON < 0.3 and abs(pos[k, 1] - xy2[k, 1]) / METRE_LON < 0.3
+
     def test_preview_with_deletions_after_the_revision_is_solved(self, client, users):
         import time
 

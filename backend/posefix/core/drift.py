@@ -632,20 +632,37 @@ def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sig
         sigma_e = max(float(np.sqrt(np.mean(0.5 * np.sum(y**2, axis=1)))), 1.0)
     else:
         sigma_e = prior_sigma
+    u_single = (g_m - p_rep_m)[:, :2]
     prev = frozen[3] if frozen is not None and len(frozen) > 3 else None
     if prev is not None and prev.loc_sigma_h_m is not None and len(prev.loc_sigma_h_m) == len(kf_t_s):
-        # a live drag keeps the levels of the last full solve: re-solving them moves every
-        # location target of the level the edit sits in (and its neighbours) by millimetres
-        # to centimetres, which would turn each frame of a drag into a full solve
-        return prev.bias_enu_m[:, :2], prev.bias_sigma_m**2, prev.loc_sigma_h_m
+        return _levels_near_new_edits(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, u_single, prev)
     c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e)
     info = open_sky_information(kf_t_s, c, var_c, levels.jumps)
     if np.any(info > 0):
         c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, level_info=info)
     loc_sigma = np.where(levels.use, np.sqrt(levels.sigma_w_m**2 + var_c), np.inf)
-    u_single = (g_m - p_rep_m)[:, :2]
     bias = np.where(levels.use[:, None], u_single - levels.u_m + c, 0.0)
     return bias, np.where(np.isfinite(loc_sigma), var_c, 0.0), loc_sigma
+
+
+def _levels_near_new_edits(kf_t_s, levels: GnssLevels, edit_kf, y, sigma_u, sigma_e, u_single, prev: DriftEstimate):
+    """A live drag (one more edit on a solved run): the levels re-solved with the new edits
+    within ``LEVEL_TAPER_KEYFRAMES[0]`` keyframes of them, tapering linearly to the last full
+    solve's beyond the second, and that solve's variances.  Re-solving them in full moves
+    every location target of the level an edit sits in (and its neighbours) by millimetres
+    to centimetres, which would turn each frame of a drag into a full solve; near the drag
+    they are what the commit will see, so the dragged keyframe lands where the commit puts it."""
+    prev_bias, prev_var, prev_sigma = prev.bias_enu_m[:, :2], prev.bias_sigma_m**2, prev.loc_sigma_h_m
+    new = np.flatnonzero(~np.isin(np.round(kf_t_s[edit_kf], 6), np.round(prev.edit_t_s, 6)))
+    if len(new) == 0 and len(edit_kf) == len(prev.edit_t_s):
+        return prev_bias, prev_var, prev_sigma
+    c, _, _ = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, want_variance=False)
+    bias = np.where(levels.use[:, None], u_single - levels.u_m + c, 0.0)
+    near, far = LEVEL_TAPER_KEYFRAMES
+    changed = edit_kf[new] if len(new) else edit_kf
+    dist = np.min(np.abs(np.arange(len(kf_t_s))[:, None] - changed[None, :]), axis=1)
+    w = np.clip((far - dist) / (far - near), 0.0, 1.0)[:, None]
+    return w * bias + (1.0 - w) * prev_bias, prev_var, prev_sigma
 
 
 # ----------------------------------------------------------------------------- edits the shape cannot join
@@ -833,6 +850,7 @@ LEVEL_JUMP_SIGMA_M = 15.0  # prior spread of a jump (canyon offsets are 5-20 m)
 OPEN_SKY_SIGMA_M = 1.0  # bias of an open-sky fix, 1 sigma per axis
 CANYON_LEVEL_SIGMA_M = 12.0  # spread of a canyon offset's level, per axis
 OPEN_SKY_SHARE = 0.5  # prior share of open-sky levels
+LEVEL_TAPER_KEYFRAMES = (30, 90)  # a live drag re-solves the levels within the first, none beyond the second
 
 
 @dataclass(frozen=True)
@@ -1050,9 +1068,9 @@ def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e:
     ``y_m`` (m,2) the pose's error at each edit (p~ - c_edit); ``level_info`` (k,) extra
     information (1/m^2) on the level being zero at each keyframe (``open_sky_information``).  The means come from one
     banded Cholesky solve (both axes at once: they share the information matrix); the
-    variances from a block-tridiagonal selected inversion (a pass each way, 3x3 blocks).
+    variances from columns of the inverse (``level_variance_at_levels``).
     """
-    from scipy.linalg import solveh_banded
+    from scipy.linalg import cho_solve_banded, cholesky_banded
 
     k = len(t_s)
     dt = float(np.median(np.diff(t_s))) if k > 1 else 1.0
@@ -1074,30 +1092,35 @@ def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e:
     for r in range(3):  # H[3i + r, 3(i+1) + s] = L[i][s, r]
         for s in range(3):
             ab[5 + r - (3 + s), np.arange(1, k) * 3 + s] = L[:, s, r]
-    x = solveh_banded(ab, g.reshape(n, 2), check_finite=False)
-    x = x.reshape(k, 3, 2)
-    var_c = level_variance(Dg, L) if want_variance else None
+    cb = cholesky_banded(ab, check_finite=False)
+    x = cho_solve_banded((cb, False), g.reshape(n, 2), check_finite=False).reshape(k, 3, 2)
+    var_c = level_variance_at_levels(cb, levels.jumps, ramp) if want_variance else None
     return x[:, 2], x[:, 0], var_c
 
 
-def level_variance(Dg: np.ndarray, L: np.ndarray) -> np.ndarray:
-    """Marginal variance of the level state (k,) from the block-tridiagonal information matrix.
+def level_variance_at_levels(cb: np.ndarray, jumps: np.ndarray, ramp: int) -> np.ndarray:
+    """Marginal variance of the level (k,) from the banded Cholesky factor ``cb`` of the information matrix.
 
-    Forward Schur complements ``S_i = D_i - L_i-1 S_i-1^-1 L_i-1^T``, then backwards
-    ``Sigma_i = S_i^-1 + G Sigma_i+1 G^T`` with ``G = S_i^-1 L_i^T`` (Rauch-Tung-Striebel in
-    information form).
+    Between jumps the level is one constant (its wander is centimetres over a run), so its
+    variance is the same at every keyframe of a level: it is solved exactly (a column of the
+    inverse, ``H^-1 e_i``) at the middle of each level and held over it, and at each jump,
+    whose value (the peak: the level is free there) the ramp around it takes.  O(k (levels +
+    jumps)) instead of a per-keyframe recursion.
     """
-    k = len(Dg)
-    Sinv = np.empty_like(Dg)
-    Sinv[0] = np.linalg.inv(Dg[0])
-    for i in range(1, k):
-        Li = L[i - 1]
-        Sinv[i] = np.linalg.inv(Dg[i] - Li @ Sinv[i - 1] @ Li.T)
-    out = np.empty(k)
-    sig = Sinv[-1]
-    out[-1] = sig[2, 2]
-    for i in range(k - 2, -1, -1):
-        G = Sinv[i] @ L[i].T
-        sig = Sinv[i] + G @ sig @ G.T
-        out[i] = sig[2, 2]
-    return np.maximum(out, 0.0)
+    from scipy.linalg import cho_solve_banded
+
+    k = cb.shape[1] // 3
+    jumps = np.asarray(jumps, dtype=np.int64)
+    bounds = np.concatenate([[0], jumps, [k]])
+    mids = (bounds[:-1] + bounds[1:]) // 2
+    at = np.unique(np.clip(np.concatenate([mids, jumps]), 0, k - 1))
+    E = np.zeros((3 * k, len(at)))
+    E[3 * at + 2, np.arange(len(at))] = 1.0
+    X = cho_solve_banded((cb, False), E, check_finite=False)
+    exact = X[3 * at + 2, np.arange(len(at))]
+    seg = np.searchsorted(jumps, np.arange(k), side="right")  # level of each keyframe
+    var = np.empty(k)
+    var[:] = exact[np.searchsorted(at, mids)][seg]
+    for j in jumps:  # the ramp, where the level moves: its peak, at the jump
+        var[max(j - ramp, 0):j + ramp + 1] = exact[np.searchsorted(at, j)]
+    return np.maximum(var, 0.0)

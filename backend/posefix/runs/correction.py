@@ -282,6 +282,9 @@ def local_drift(problem: Problem, merged: dict[str, Any], base: Solution) -> Dri
         t_s, p_rep, g_nan, edit_kf, c_m, has_alt, lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m,
         uc.sigma_v_m, cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate, steps=steps,
         levels=lambda: problem.gnss_levels(index),
+        # GNSS levels: re-solved near the drag, the base revision's beyond (drift._levels_near_new_edits)
+        frozen=(None if base.drift.loc_sigma_h_m is None or base.drift.tau_s <= 0 else
+                (base.drift.sigma_b_m**2, base.drift.tau_s, base.drift.detected, base.drift)),
     )
     near, far = PREVIEW_DRIFT_KEYFRAMES
     dist = np.min(np.abs(np.arange(k)[:, None] - changed[None, :]), axis=1)
