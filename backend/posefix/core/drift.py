@@ -534,7 +534,7 @@ def estimate_drift(
     loc_sigma = None
     if callable(levels) and len(steps.index):
         levels = levels()  # found from every sample once per run: only when the edits confirmed steps
-    if isinstance(levels, GnssLevels) and len(steps.index) and levels_bridged(levels, kf_t_s):
+    if isinstance(levels, GnssLevels) and len(steps.index) and levels.bridged:
         # the edits confirmed steps of the fix, and the pose bridged every large one
         bias[:, :2], var_h, loc_sigma = _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels, sigma_u_h_m,
                                                     prior_sigma_m, frozen)
@@ -860,7 +860,8 @@ class GnssLevels:
     u_m (k,2): mean of g - p~ over the samples nearest each keyframe (east, north; NaN where none);
     use (k,) bool: keyframes whose mean counts (a fix, not an outlier); sigma_w_m: white sigma of
     u_m per keyframe and axis (from the MAD of its differences); jumps (j,) keyframes where the
-    level changes; jump_m (j,2) their sizes as found.
+    level changes; jump_m (j,2) their sizes as found; bridged: the pose bridged the jumps
+    (``levels_bridged``).
     """
 
     u_m: np.ndarray
@@ -868,6 +869,7 @@ class GnssLevels:
     sigma_w_m: float
     jumps: np.ndarray
     jump_m: np.ndarray
+    bridged: bool = False
 
 
 def keyframe_means(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> np.ndarray:
@@ -1016,7 +1018,8 @@ def gnss_levels(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> GnssLevel
         use &= np.hypot(*(filled - med).T) <= 5.0 * sigma_w + 1.0
     jumps, jump_m = find_level_jumps(np.where(use[:, None], u_m, np.nan), sigma_w, window, gap) \
         if len(kf_t_s) >= 2 * (window + gap) + 1 else (np.zeros(0, np.int64), np.zeros((0, 2)))
-    return GnssLevels(u_m, use, sigma_w, jumps, jump_m)
+    levels = GnssLevels(u_m, use, sigma_w, jumps, jump_m)
+    return dataclasses.replace(levels, bridged=levels_bridged(levels, kf_t_s))
 
 
 def _level_blocks(t_s, levels: GnssLevels, edit_kf, sigma_u, sigma_e, ramp: int):
