@@ -338,3 +338,30 @@ def test_the_level_model_takes_a_pose_that_bridged_the_jumps_but_not_one_that_fo
     follows = gnss_levels(t, c - followed - e + noise, t)
     assert len(bridged.jumps) >= 6 and levels_bridged(bridged, t)
     assert not levels_bridged(follows, t)
+
+
+@pytest.mark.parametrize("which", ["new", "moved"])
+def test_a_live_drag_on_a_level_model_run_is_local_and_lands_where_the_full_solve_does(which):
+    from posefix.io.edits import EditSet, Move
+
+    sim = simulate(duration_s=1200.0, rate_hz=2.0, edit_every_s=100.0, seed=11, regime="canyon_ins")
+    problem = prepare(sim.run)
+    moves = [Move(e.t_s, e.lat_deg, e.lon_deg, None) for e in sim.edits]
+    sol = problem.solve(EditSet(moves=moves))
+    assert sol.drift.loc_sigma_h_m is not None
+    rows = sol.keyframes.index
+    if which == "new":
+        k = 300
+        t = float(sim.run.t_s[rows[k]])
+    else:
+        e = sim.edits[3]
+        k, t = int(np.searchsorted(rows, e.index)), e.t_s
+    lat, lon, _ = geodesy.enu_to_geodetic((sol.keyframes.p_enu_m[k] + [3.0, 0.0, 0.0])[None, :], problem.origin)
+    dragged = Move(t, float(lat[0]), float(lon[0]), None)
+    edits = EditSet(moves=moves + [dragged] if which == "new" else moves[:3] + [dragged] + moves[4:])
+    local = problem.solve(edits, warm_start=sol, local=True)
+    full = problem.solve(edits, warm_start=sol)
+    assert local.solver.method.endswith("-window")
+    moved = local.keyframes.p_enu_m[k] - sol.keyframes.p_enu_m[k]
+    assert moved[0] > 1.5  # the keyframe follows the drag (the edits around hold part of it back)
+    assert np.max(np.abs(local.keyframes.p_enu_m[k] - full.keyframes.p_enu_m[k])[:2]) < 0.15

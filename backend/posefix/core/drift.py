@@ -537,7 +537,7 @@ def estimate_drift(
     if isinstance(levels, GnssLevels) and len(steps.index) and levels.bridged:
         # the edits confirmed steps of the fix, and the pose bridged every large one
         bias[:, :2], var_h, loc_sigma = _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels, sigma_u_h_m,
-                                                    prior_sigma_m, frozen)
+                                                    prior_sigma_m, frozen, d)
         detected = True
         weight = sigma_w_h_m**2 / loc_sigma**2
     else:
@@ -624,9 +624,10 @@ def open_sky_information(kf_t_s: np.ndarray, c_m: np.ndarray, var_c: np.ndarray,
 
 
 def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sigma_u: float, prior_sigma: float,
-                frozen) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                frozen, d_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Horizontal bias (k,2) such that g - bias = p~ + u - c (the level-corrected mean fix), the
-    variance of the level (k,), and the location term's horizontal sigma (k,) (inf: no fix)."""
+    variance of the level (k,), and the location term's horizontal sigma (k,) (inf: no fix).
+    ``d_m`` (m,3) the edit offsets (``edit_offsets``), which tell a live drag's moved edits."""
     y = p_rep_m[edit_kf, :2] - edit_c_m[:, :2]  # the pose's error at each edit
     if len(y) >= 3:
         sigma_e = max(float(np.sqrt(np.mean(0.5 * np.sum(y**2, axis=1)))), 1.0)
@@ -635,7 +636,7 @@ def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sig
     u_single = (g_m - p_rep_m)[:, :2]
     prev = frozen[3] if frozen is not None and len(frozen) > 3 else None
     if prev is not None and prev.loc_sigma_h_m is not None and len(prev.loc_sigma_h_m) == len(kf_t_s):
-        return _levels_near_new_edits(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, u_single, prev)
+        return _levels_near_new_edits(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, u_single, prev, d_m)
     c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e)
     info = open_sky_information(kf_t_s, c, var_c, levels.jumps)
     if np.any(info > 0):
@@ -645,15 +646,18 @@ def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sig
     return bias, np.where(np.isfinite(loc_sigma), var_c, 0.0), loc_sigma
 
 
-def _levels_near_new_edits(kf_t_s, levels: GnssLevels, edit_kf, y, sigma_u, sigma_e, u_single, prev: DriftEstimate):
-    """A live drag (one more edit on a solved run): the levels re-solved with the new edits
-    within ``LEVEL_TAPER_KEYFRAMES[0]`` keyframes of them, tapering linearly to the last full
+def _levels_near_new_edits(kf_t_s, levels: GnssLevels, edit_kf, y, sigma_u, sigma_e, u_single, prev: DriftEstimate,
+                           d_m):
+    """A live drag (one more edit on a solved run, or one moved): the levels re-solved with the
+    edits that are new or moved (their offset ``d_m`` differs from the last solve's) within ``LEVEL_TAPER_KEYFRAMES[0]`` keyframes of them, tapering linearly to the last full
     solve's beyond the second, and that solve's variances.  Re-solving them in full moves
     every location target of the level an edit sits in (and its neighbours) by millimetres
     to centimetres, which would turn each frame of a drag into a full solve; near the drag
     they are what the commit will see, so the dragged keyframe lands where the commit puts it."""
     prev_bias, prev_var, prev_sigma = prev.bias_enu_m[:, :2], prev.bias_sigma_m**2, prev.loc_sigma_h_m
-    new = np.flatnonzero(~np.isin(np.round(kf_t_s[edit_kf], 6), np.round(prev.edit_t_s, 6)))
+    before = {round(float(t), 6): dd for t, dd in zip(prev.edit_t_s, prev.edit_offsets_enu_m[:, :2])}
+    new = np.array([i for i, (t, dd) in enumerate(zip(kf_t_s[edit_kf], d_m[:, :2]))
+                    if (b := before.get(round(float(t), 6))) is None or np.max(np.abs(dd - b)) > 1e-3], dtype=np.int64)
     if len(new) == 0 and len(edit_kf) == len(prev.edit_t_s):
         return prev_bias, prev_var, prev_sigma
     c, _, _ = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, want_variance=False)
