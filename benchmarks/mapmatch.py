@@ -7,8 +7,10 @@ Rows (error at the surveyed waypoints, metres):
        what a live session shows), against the same targets
   (b+w) (b) with the WiFi of (d) added: a check of the fusion, not a target. The known
        start already places the walk better than any WiFi fix, so a fusion that weighs
-       WiFi honestly leaves (b) about unchanged; the excess over (b) is WiFi (f3, f4)
-       evidence counted as stronger than it is (its errors are correlated in time)
+       WiFi honestly leaves (b) about unchanged; an excess over (b) is WiFi (f3, f4)
+       evidence counted as stronger than it is. Scans are discounted for their correlation
+       in time (τ = the model's wifi_corr_s, 20 s; ``--wifi-corr-s 0`` counts every scan as
+       independent, the behaviour before the discount)
   (c) CRF, unknown start         (uniform over all reachable vertices; all waypoints)
   (d) CRF + WiFi, unknown start  (fingerprints built from the OTHER walks: leave-one-out)
   WiFi alone: the k-NN position of every scan (between the first and last waypoint) of the
@@ -20,7 +22,10 @@ Below the table, for (c): the median 1σ major semi-axis of the smoothed start m
 p(y_0 | whole walk): how many metres the walk's shape leaves the start undetermined; for
 (d): a 90 % interval of its mean with the walks resampled (how much the figure depends on
 which walks are in the set); for (d) and WiFi alone: the error split by how far the truth is from the
-nearest scan of the other walks (the survey's coverage).
+nearest scan of the other walks (the survey's coverage); for (b), (b+w) and (d): whether the
+reported ellipses are honest — the share of waypoints inside their 2σ ellipse (86 % for a
+calibrated Gaussian; less = overconfident) and the median squared Mahalanobis distance of
+the error (1.39).
 
 Parameters are never fitted on the walk being scored: two folds (even / odd walks), each
 tracked with the heading bias and the f1/f2 weights learned on the other fold. ``--quick``
@@ -39,6 +44,7 @@ import glob
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="every third walk; learn only the heading bias")
     ap.add_argument("--figure", metavar="PNG", help="also draw one walk (floor, waypoints, DR, CRF, 2σ ellipses)")
+    ap.add_argument("--wifi-corr-s", type=float, metavar="S", default=None,
+                    help="correlation time of WiFi errors for the discount of f3/f4 (s; default the "
+                         "model's, 20; 0 = every scan independent, the behaviour before the discount)")
     ap.add_argument("--suggest", action="store_true",
                     help="only time suggestions on the demo's 10 min drive (cache cleared vs repeated)")
     args = ap.parse_args(argv)
@@ -85,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
 
     folds = [list(range(0, len(walks), 2)), list(range(1, len(walks), 2))]
     errs = {k: [] for k in ("a", "b", "b_online", "b_wifi", "c", "d", "wifi", "centroid")}
+    maha2 = {k: [] for k in ("b", "b_wifi", "d")}  # squared Mahalanobis distance of each waypoint's error
     cover = {"d": [], "wifi": []}  # distance (m) from the truth to the nearest other-walk scan
     start_sigma_c = []
     ms = {k: [] for k in "bcd"}
@@ -93,6 +103,8 @@ def main(argv: list[str] | None = None) -> int:
         other = [walks[j] for j in folds[1 - i]]
         t1 = time.perf_counter()
         model, rep = train_model(base, other, heading_bias=True, step_em=False, weights=not args.quick)
+        if args.wifi_corr_s is not None:
+            model = model.with_(sigmas=replace(model.sigmas, wifi_corr_s=args.wifi_corr_s))
         reports.append((rep, time.perf_counter() - t1))
         for j in fold:
             w = walks[j]
@@ -110,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
             rbw = track_walk(model, w, start_xy_m=start, fingerprints=fp)
             errs["b_wifi"].append(evaluate_track(w.waypoints, rbw.t_ms, rbw.p_xy_m, skip_first=True).err_wp_m)
             errs["d"].append(evaluate_track(w.waypoints, rd.t_ms, rd.p_xy_m).err_wp_m)
+            for k, r, skip in (("b", rb, True), ("b_wifi", rbw, True), ("d", rd, False)):
+                maha2[k].append(mahalanobis2_at_waypoints(w.waypoints, r, skip_first=skip))
             cover["d"].append(nearest_m(w.waypoints[:, 1:3], fp.p_xy_m))
             e_w, c_w = wifi_alone(fp, w)
             errs["wifi"].append(e_w)
@@ -158,6 +172,14 @@ def main(argv: list[str] | None = None) -> int:
     lo_d, hi_d = walk_bootstrap(errs["d"])
     print(f"(d) mean with the {len(errs['d'])} walks resampled with replacement: 90 % interval "
           f"{lo_d:.2f}-{hi_d:.2f} m (which walks are in the set moves the mean this much)")
+    honest = []
+    for k in ("b", "b_wifi", "d"):
+        m2 = np.concatenate(maha2[k])
+        honest.append(f"{k.replace('_wifi', '+w')} {100 * np.mean(m2 <= 4.0):.0f} % (median {np.median(m2):.2f})")
+    tau = model.sigmas.wifi_corr_s
+    print(f"ellipses, share of waypoints inside their 2σ ellipse (86 % if honest; median squared Mahalanobis "
+          f"distance, 1.39 if honest): " + ", ".join(honest)
+          + f"; WiFi discount τ = {tau:g} s" + (" (scans independent)" if tau == 0 else ""))
     for k in ("d", "wifi"):
         e, c = np.concatenate(errs[k]), np.concatenate(cover[k])
         parts = []
@@ -210,6 +232,25 @@ def walk_bootstrap(errors: list[np.ndarray], n_boot: int = 2000, seed: int = 0) 
     idx = np.random.default_rng(seed).integers(0, len(errors), size=(n_boot, len(errors)))
     means = sums[idx].sum(axis=1) / np.maximum(counts[idx].sum(axis=1), 1)
     return float(np.percentile(means, 5)), float(np.percentile(means, 95))
+
+
+def mahalanobis2_at_waypoints(waypoints: np.ndarray, res, skip_first: bool = False) -> np.ndarray:
+    """Squared Mahalanobis distance (w,) of each waypoint's error under the reported ellipse:
+    the track interpolated at the waypoint's time (as the error is measured) against the
+    covariance of the track row nearest in time, rebuilt from its 1σ semi-axes and angle.
+    A calibrated 2-D Gaussian gives a χ²₂: median 1.39, 86 % within 4 (the 2σ ellipse)."""
+    from posefix.mapmatch.evaluate import interpolate_xy
+
+    wp = np.asarray(waypoints, dtype=float)
+    t = np.asarray(res.t_ms, dtype=float)
+    err = interpolate_xy(wp[:, 0], t, res.p_xy_m) - wp[:, 1:3]
+    i = np.clip(np.searchsorted(t, wp[:, 0]), 1, t.size - 1)
+    i = np.where(np.abs(t[i - 1] - wp[:, 0]) <= np.abs(t[i] - wp[:, 0]), i - 1, i) if t.size > 1 else np.zeros_like(i)
+    a = np.radians(res.angle_deg[i])
+    u = np.stack([np.cos(a), np.sin(a)], axis=1)  # major axis
+    v = np.stack([-np.sin(a), np.cos(a)], axis=1)
+    m2 = (np.sum(err * u, axis=1) / res.sigma_major_m[i]) ** 2 + (np.sum(err * v, axis=1) / res.sigma_minor_m[i]) ** 2
+    return m2[1:] if skip_first else m2
 
 
 def nearest_m(p_xy_m: np.ndarray, survey_xy_m: np.ndarray) -> np.ndarray:

@@ -76,8 +76,14 @@ def test_build_from_walks_places_scans_on_the_waypoint_line_and_finds_peaks():
     assert np.allclose(fp.p_xy_m, pos)
     assert set(fp.peak_xy_m) == {"ap0", "ap1"}  # only those come within -55 dBm
     assert np.allclose(fp.peak_xy_m["ap0"], [5.0, 5.0])
+    # One survey walk: f4's σ cannot be calibrated (no held-out walk), so the map gives no
+    # f4 observation rather than one with a guessed σ, though the peaks are found.
+    assert fp.peak_sigma_m is None and fp.peaks_in_walk(w) == []
+    scans = wifi_scans(w, fp.max_age_ms, fp.scan_time)
+    assert [int(tp) for tp, _ in fp.scan_peaks(scans)] == [3000, 33000]
+    fp.peak_sigma_m = 4.0  # a σ given by the caller is used
     peaks = fp.peaks_in_walk(w)
-    assert sorted(int(tp) for tp, _, _ in peaks) == [3000, 33000]
+    assert sorted(int(tp) for tp, _, _ in peaks) == [3000, 33000] and all(s == 4.0 for _, _, s in peaks)
 
 
 def test_scans_drop_stale_entries_and_are_timed_when_measured():
@@ -187,7 +193,7 @@ def test_a_scan_gives_at_most_one_peak_the_strongest():
 def test_peak_sigma_is_calibrated_on_the_survey():
     rng = np.random.default_rng(5)
     walks = survey_walks(rng, noise_db=6.0)
-    assert build_fingerprints(walks, calibrate=False).peak_sigma_m == 3.0  # the uncalibrated default
+    assert build_fingerprints(walks, calibrate=False).peak_sigma_m is None  # uncalibrated: no f4
     fp = build_fingerprints(walks)
     # Fresh walks along the rows halfway between the survey's, noisy like it: the distance
     # from each detected peak's location to the walker is Rayleigh-like with the calibrated σ.
@@ -204,11 +210,33 @@ def test_peak_sigma_is_calibrated_on_the_survey():
     assert 0.6 < ratio < 1.6, (np.median(r), fp.peak_sigma_m)
 
 
+def test_peak_sigma_is_left_uncalibrated_with_too_few_held_out_peaks():
+    from posefix.mapmatch.fingerprints import MIN_PEAKS_TO_CALIBRATE, calibrate_peak_sigma
+
+    walks = survey_walks(np.random.default_rng(5), noise_db=6.0)
+    # Three survey rows have a few held-out peaks: a σ from them (about 3.9 m here) would be
+    # a noisy median, so f4 is left out rather than given it; eight rows calibrate it.
+    few = build_fingerprints(walks[:3])
+    assert few.peak_sigma_m is None and few.peaks_in_walk(walks[0]) == []
+    assert calibrate_peak_sigma(build_fingerprints(walks[:3], calibrate=False), min_peaks=1) > 0.0
+    assert MIN_PEAKS_TO_CALIBRATE == 30
+    assert build_fingerprints(walks).peak_sigma_m > 0.0
+
+
 def test_fingerprint_file_keeps_the_peak_sigma(tmp_path):
     fp = build_fingerprints(survey_walks(np.random.default_rng(6), noise_db=6.0))
     fp.peak_sigma_m = 7.25
     save_fingerprints(fp, tmp_path / "fp.npz")
     assert load_fingerprints(tmp_path / "fp.npz").peak_sigma_m == 7.25
+    # Not calibrated: the file has no peak_sigma_m and reads back uncalibrated (f4 left
+    # out), as do files written before f4's calibration — not as the old 3 m guess.
+    fp.peak_sigma_m = None
+    save_fingerprints(fp, tmp_path / "none.npz")
+    back = load_fingerprints(tmp_path / "none.npz")
+    walk = survey_walks(np.random.default_rng(7), noise_db=6.0)[0]  # passes 2 m from ap0 and ap1
+    assert back.peak_sigma_m is None and back.peaks_in_walk(walk) == []
+    back.peak_sigma_m = 7.25
+    assert len(back.peaks_in_walk(walk)) >= 2  # the same map with a σ does see its peaks
     fp.peak_sigma_m = 0.0
     save_fingerprints(fp, tmp_path / "bad.npz")
     with pytest.raises(ValueError, match=r"bad\.npz:0: field peak_sigma_m"):

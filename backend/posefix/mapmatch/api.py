@@ -88,12 +88,18 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
         if data_wifi:
             # f3 matters when the start is unknown (with a known start the steps alone are
             # better than any WiFi fix and the weight goes to 0): learn it from a uniform start.
+            from posefix.mapmatch.features import evidence_shares
+
             model = model.with_(weights=fit.weights)
             data = []
             for w, st, t, clamp in data_wifi:
                 fp = build_fingerprints([x for x in with_wifi if x is not w], method="knn")
-                wifi = {int(np.argmin(np.abs(st.t_ms - tp))): (mu, cov)
-                        for tp, mu, cov in fp.predict_walk(w, model.graph.p_xy_m)}
+                pred = fp.predict_walk(w, model.graph.p_xy_m)
+                # Each scan discounted for its correlation with the previous one, as when
+                # tracking: a score times its share is the Gaussian with Σ / share.
+                shares = evidence_shares(np.array([tp for tp, _, _ in pred]) / 1000.0, model.sigmas.wifi_corr_s)
+                wifi = {int(np.argmin(np.abs(st.t_ms - tp))): (mu, cov / sh)
+                        for (tp, mu, cov), sh in zip(pred, shares) if sh > 0.0}
                 data.append((walk_features(model, st.vectors_m(model.step_model), t, wifi=wifi), clamp))
             fit = learn_weights(model, data, learn=("f3",), max_iter=10)
         model = model.with_(weights=fit.weights)

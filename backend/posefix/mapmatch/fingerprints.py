@@ -38,7 +38,9 @@ While tracking, a scan where that access point reads ≥ ``peak_dbm`` and more t
 scans just before and after is a peak, at most one a scan (the strongest: one scan is one
 place, however many access points peak in it); its observation is (peak location, σ) with
 σ calibrated on the survey (:func:`calibrate_peak_sigma`, the held-out peaks' Rayleigh
-median; 3 m uncalibrated). Measured on site1/F1 (leave-one-walk-out): 1 413 peaks in 403
+median). A map whose σ could not be calibrated (``peak_sigma_m`` None: one survey walk, or
+under 30 held-out peaks — on site1/F1 fewer than 5-8 survey walks) gives no f4 at all (:data:`UNCALIBRATED_PEAK_SIGMA` says why).
+Measured on site1/F1 (leave-one-walk-out): 1 413 peaks in 403
 scans before the one-a-scan rule (6 a scan where any), the peak location a median 10.5 m
 from the walker (10 % within 3.2 m, 10 % beyond 29 m), so the calibrated σ is 9.7-10.6 m.
 With σ = 3 m f4 outweighed f3 by hundreds of nats on a walk (06b57669: the wrong
@@ -58,6 +60,20 @@ __all__ = ["FingerprintMap", "build_fingerprints", "save_fingerprints", "load_fi
 
 MISSING_DBM = -100.0
 
+# f4's σ when it cannot be calibrated on the survey: None, i.e. f4 is left out. Physics
+# gives only a floor for it, not a value: the peak is located no better than the distance
+# walked between scans (3-4 s at 1.2 m/s) plus the survey's own spacing, and a -55 dBm
+# reading is 3-6 m from an access point (-40 dBm at 1 m, path-loss exponent 2-3) but about
+# 2x nearer or farther under the 6-8 dB shadowing of indoor walls and bodies; how far the
+# survey passed from each access point, which dominates, is unknown without held-out
+# peaks. A guess is then either too small — 3 m had been assumed, and held-out peaks on
+# site1/F1 land a median 10.5 m away, so each peak scored ~10x too many nats and outvoted
+# f3 on whole walks — or large enough to be safe, and then it carries little (σ = 10 m:
+# 0.1-0.6 nats between places 5 m apart within 15 m of the peak). Leaving f4 out loses
+# that little and never misleads; f3 (its Σ falls back to the k-NN spread) still uses
+# the scans.
+UNCALIBRATED_PEAK_SIGMA: float | None = None
+
 
 @dataclass
 class FingerprintMap:
@@ -70,7 +86,7 @@ class FingerprintMap:
     sigma0_m: float = 2.0
     min_common: int = 3
     peak_dbm: float = -55.0
-    peak_sigma_m: float = 3.0
+    peak_sigma_m: float | None = UNCALIBRATED_PEAK_SIGMA  # f4's σ (m); None: not calibrated, no f4
     method: str = "knn"
     path_loss_exp: float = 2.5
     sigma_db: float = 6.0
@@ -195,7 +211,10 @@ class FingerprintMap:
 
     def peaks_in_walk(self, walk: Walk):
         """[(t_ms, peak_xy (2,), sigma_m)] for RSSI peaks of known access points (f4): at most
-        one a scan (:meth:`scan_peaks`)."""
+        one a scan (:meth:`scan_peaks`); none when f4's σ is not calibrated (``peak_sigma_m``
+        None, :data:`UNCALIBRATED_PEAK_SIGMA`)."""
+        if self.peak_sigma_m is None:
+            return []
         scans = wifi_scans(walk, self.max_age_ms, self.scan_time)
         return [(t_ms, self.peak_xy_m[b], self.peak_sigma_m) for t_ms, b in self.scan_peaks(scans)]
 
@@ -379,7 +398,16 @@ def _row_scan(bssids: list[str], row: np.ndarray) -> dict[str, float]:
     return {bssids[a]: float(row[a]) for a in heard}
 
 
-def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5, min_peaks: int = 10) -> float:
+# Held-out peaks needed to calibrate f4's σ. The median of n Rayleigh distances has a
+# relative standard error of 0.72/√n (1 / (2 f(m) √n) at the median m = 1.18σ, over m):
+# with 30 peaks σ is known to ±26 % (2 SE); with 10, ±46 %, and a σ half too small is the
+# overconfidence the calibration is there to remove. On site1/F1 3-5 survey walks give
+# 0-24 held-out peaks (σ 3.7-8.0 m where 29 walks give 9.7 m), 8 walks 41-57.
+MIN_PEAKS_TO_CALIBRATE = 30
+
+
+def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5,
+                         min_peaks: int = MIN_PEAKS_TO_CALIBRATE) -> float | None:
     """f4's σ (m) that makes the peak observations honest on the survey itself.
 
     The survey walks are split into ``folds`` groups (by ``fp.walk_id``, as in
@@ -390,7 +418,8 @@ def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5, min_peaks: int = 10
     ``σ = median(r) / √(2 ln 2)`` (the median: the bulk, as for f3's scale). On site1/F1
     the held-out median r is about 11-12 m, i.e. σ ≈ 10 m, where 3 m had been assumed.
 
-    Returns ``fp.peak_sigma_m`` unchanged without two survey walks or with fewer than
+    Returns ``fp.peak_sigma_m`` unchanged (None unless given: f4 left out, see
+    :data:`UNCALIBRATED_PEAK_SIGMA`) without two survey walks or with fewer than
     ``min_peaks`` held-out peaks.
     """
     if fp.walk_id is None or np.unique(fp.walk_id).size < 2:
@@ -416,15 +445,16 @@ def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5, min_peaks: int = 10
 
 def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
     """Write ``.npz`` (members ``format``, ``version``, ``bssids``, ``p_xy_m``, ``rssi_dbm`` and the
-    calibration: ``cov_scale``, ``outlier_frac``, ``peak_sigma_m``, ``scale_match_db``,
-    ``scale_by_match``); returns bytes."""
+    calibration: ``cov_scale``, ``outlier_frac``, ``peak_sigma_m`` (absent when f4's σ is not
+    calibrated), ``scale_match_db``, ``scale_by_match``); returns bytes."""
+    extra = {} if fp.peak_sigma_m is None else {"peak_sigma_m": np.array(fp.peak_sigma_m)}
     with open(path, "wb") as fh:
         np.savez_compressed(fh, format=np.array("posefix-fingerprints"), version=np.array(2, dtype=np.int32),
                             bssids=fp.bssids.astype(str), p_xy_m=fp.p_xy_m, rssi_dbm=fp.rssi_dbm,
                             cov_scale=np.array(fp.cov_scale), outlier_frac=np.array(fp.outlier_frac),
-                            peak_sigma_m=np.array(fp.peak_sigma_m),
                             scale_match_db=np.asarray(fp.scale_match_db if fp.scale_match_db is not None else [], float),
-                            scale_by_match=np.asarray(fp.scale_by_match if fp.scale_by_match is not None else [], float))
+                            scale_by_match=np.asarray(fp.scale_by_match if fp.scale_by_match is not None else [], float),
+                            **extra)
     return Path(path).stat().st_size
 
 
@@ -440,7 +470,9 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
         table: dict = {}
         scale = float(z["cov_scale"]) if "cov_scale" in z.files else 1.0
         eps = float(z["outlier_frac"]) if "outlier_frac" in z.files else 0.0
-        if "peak_sigma_m" in z.files:  # files written before f4's calibration keep the 3 m default
+        # Files written before f4's calibration (or whose σ could not be calibrated) have no
+        # peak_sigma_m: f4 is left out for them (UNCALIBRATED_PEAK_SIGMA), not given 3 m.
+        if "peak_sigma_m" in z.files:
             sig = float(z["peak_sigma_m"])
             if not (np.isfinite(sig) and sig > 0.0):
                 raise ValueError(f"{path}:0: field peak_sigma_m: must be a positive number of metres, got {sig}")

@@ -20,7 +20,8 @@ member             dtype      meaning
 ``step_model``     float64    ``[height_m, alpha_s, beta, gamma_m, heading_bias_rad,
                               min_len_m, max_len_m]``
 ``weights``        float64    ``[w1, w2, w3, w4]`` for features f1..f4
-``sigmas``         float64    ``[len_m, heading_rad, window_steps, min_span_m]``
+``sigmas``         float64    ``[len_m, heading_rad, window_steps, min_span_m, wifi_corr_s]``
+                              (files with the first four only read as wifi_corr_s = 20 s)
 ``beam``           float64    pruning width in nats (``inf`` = none)
 =================  =========  ===========================================================
 
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from posefix.mapmatch.features import FEATURE_NAMES, FeatureSigmas
+from posefix.mapmatch.features import FEATURE_NAMES, WIFI_CORR_S, FeatureSigmas
 from posefix.mapmatch.floorplan import GeoRef
 from posefix.mapmatch.graph import GridGraph
 from posefix.mapmatch.sensors import StepModel
@@ -87,7 +88,7 @@ def _arrays(model: Model) -> dict[str, np.ndarray]:
         "step_model": np.array([sm.height_m, sm.alpha_s, sm.beta, sm.gamma_m, sm.heading_bias_rad,
                                 sm.min_len_m, sm.max_len_m]),
         "weights": np.array([model.weights[n] for n in FEATURE_NAMES]),
-        "sigmas": np.array([sg.len_m, sg.heading_rad, sg.window_steps, sg.min_span_m]),
+        "sigmas": np.array([sg.len_m, sg.heading_rad, sg.window_steps, sg.min_span_m, sg.wifi_corr_s]),
         "beam": np.array(np.inf if model.beam is None else model.beam),
     }
 
@@ -132,10 +133,18 @@ def load_model(path: str | Path) -> Model:
         h, a, b, gm, hb, lo, hi = z["step_model"].tolist()
         w = z["weights"].tolist()
         s = z["sigmas"].tolist()
+        if len(s) not in (4, 5):
+            raise ModelFormatError(p, "sigmas", f"expected 4 or 5 numbers, got {len(s)}")
+        # Files from before wifi_corr_s read with the default: counting every scan as
+        # independent was not a choice recorded in them, only the code's behaviour then.
+        tau = s[4] if len(s) == 5 else WIFI_CORR_S
+        if not (np.isfinite(tau) and tau >= 0.0):
+            raise ModelFormatError(p, "sigmas", f"wifi_corr_s (5th entry) must be a number of seconds >= 0, got {tau}")
         beam = float(z["beam"])
     return Model(graph=graph,
                  step_model=StepModel(height_m=h, alpha_s=a, beta=b, gamma_m=gm, heading_bias_rad=hb,
                                       min_len_m=lo, max_len_m=hi),
                  weights=dict(zip(FEATURE_NAMES, w)),
-                 sigmas=FeatureSigmas(len_m=s[0], heading_rad=s[1], window_steps=int(s[2]), min_span_m=s[3]),
+                 sigmas=FeatureSigmas(len_m=s[0], heading_rad=s[1], window_steps=int(s[2]), min_span_m=s[3],
+                                      wifi_corr_s=float(tau)),
                  beam=None if not np.isfinite(beam) else beam)

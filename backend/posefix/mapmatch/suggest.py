@@ -173,7 +173,8 @@ def suggest_for_run(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz
     h_mid = np.arctan2(np.sin(heading[:-1]) + np.sin(heading[1:]), np.cos(heading[:-1]) + np.cos(heading[1:]))
     model = Model(graph=graph, weights={"f1": 1.0, "f2": 0.0, "f3": 1.0, "f4": 0.0},
                   sigmas=FeatureSigmas(len_m=0.5 * cell_m, heading_rad=np.deg2rad(10.0)))
-    tr = Tracker(model, start_xy_m=tuple(p_rep[0]), start_sigma_m=sigma_reported_m, filtered=False)
+    tr = Tracker(model, start_xy_m=tuple(p_rep[0]), start_sigma_m=sigma_reported_m, filtered=False,
+                 wifi_corr_s=0.0)  # reported positions, not WiFi scans: no WiFi time-correlation discount
     cov = np.eye(2) * sigma_reported_m**2
     kf_step = [0]
     sig = [np.sqrt(float(np.trace(cov)) / 2.0)]

@@ -13,6 +13,14 @@ heading bias"). The patent's other optimisation, replacing a confident column by
 Gaussian, is ``collapse_sigma_m``: when the column's major 1σ is below it, the column is
 replaced by the log-density of its Gaussian on the vertices within 3σ, which bounds the
 active set. It is off (0) by default because the beam already keeps steps fast here.
+
+WiFi evidence is discounted for its correlation in time: each f3 (WiFi position) and f4
+(RSSI peak) score is multiplied by the share of new information it carries given the
+previous observation of its kind, ``(1 - ρ)/(1 + ρ)`` with ``ρ = e^{-Δt/τ}``
+(:func:`posefix.mapmatch.features.evidence_share`; τ = ``model.sigmas.wifi_corr_s``, 20 s,
+0 = scans independent). The tracker keeps the last observation times, so the live filter,
+the Viterbi path and the offline smoothing (which reuses the weighted scores) all see the
+same discounted evidence.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ from typing import Callable
 
 import numpy as np
 
-from posefix.mapmatch.features import FeatureSigmas, f_gaussian_position, f_robust_position, f_step
+from posefix.mapmatch.features import FeatureSigmas, evidence_share, f_gaussian_position, f_robust_position, f_step
 from posefix.mapmatch.viterbi import ForwardFilter, GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
 
 __all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "smooth", "start_log_prior"]
@@ -82,7 +90,11 @@ class Tracker:
     """Online CRF tracker over a :class:`posefix.mapmatch.model.Model`.
 
     ``start_wifi``: with ``start_xy_m`` None, an optional WiFi prediction ``(mean, cov[, ε])``
-    of a scan taken before the first step: the start prior instead of the uniform one.
+    of a scan taken before the first step (at ``start_wifi_t_ms``, default ``t0_ms``): the
+    start prior instead of the uniform one, and the first scan of the WiFi discount.
+
+    ``wifi_corr_s``: correlation time τ (s) of WiFi errors for the discount of f3/f4
+    (module docstring); None: the model's ``sigmas.wifi_corr_s``; 0: every scan independent.
 
     ``filtered`` (default): the live distribution (``column()``, each step's summary) is a
     forward (sum-product) filter's marginal; False: the Viterbi max-product column (no
@@ -91,12 +103,14 @@ class Tracker:
     ``step(step_xy_m, t_ms, wifi=None, peak=None)``: one detected step as a floor-frame
     vector (m, heading bias already applied); ``wifi`` an optional ``(mean (2,), cov (2,2)[, ε])``
     position predicted by the fingerprint map, ``peak`` an optional ``(xy (2,), sigma_m)``
-    RSSI-peak location. Returns a :class:`TrackPoint` (``vertex``: the Viterbi column's best).
+    RSSI-peak location; ``wifi_t_ms``/``peak_t_ms``: when they were measured (default the
+    step's ``t_ms``), for the discount. Returns a :class:`TrackPoint` (``vertex``: the
+    Viterbi column's best).
     """
 
     def __init__(self, model, start_xy_m: tuple[float, float] | None = None, t0_ms: int = 0,
                  start_sigma_m: float = 1.0, collapse_sigma_m: float = 0.0, start_wifi: tuple | None = None,
-                 filtered: bool = True):
+                 filtered: bool = True, wifi_corr_s: float | None = None, start_wifi_t_ms: int | None = None):
         self.model = model
         g = model.graph
         self.graph = g
@@ -105,11 +119,20 @@ class Tracker:
         self.w = model.weights
         self.sig: FeatureSigmas = model.sigmas
         self.collapse_sigma_m = collapse_sigma_m
+        tau = self.sig.wifi_corr_s if wifi_corr_s is None else float(wifi_corr_s)
+        if not (np.isfinite(tau) and tau >= 0.0):
+            raise ValueError(f"wifi_corr_s must be a number of seconds >= 0, got {wifi_corr_s}")
+        self.wifi_corr_s = tau
+        # Time (ms) of the last observation of each WiFi feature, for evidence_share.
+        self._last_obs_ms: dict[str, int | None] = {"f3": None, "f4": None}
+        self.shares: list[tuple[str, int, float]] = []  # (feature, t_ms, share) as applied
         prior = start_log_prior(self.p_xy_m, start_xy_m, start_sigma_m)
         if start_xy_m is None and start_wifi is not None:
             # Unknown start, but a WiFi scan before the first step: its prediction is the prior
-            # (unweighted: a prior is a distribution, not a feature).
+            # (unweighted: a prior is a distribution, not a feature). It is the walk's first
+            # scan, so the next one's share is counted from it.
             prior = wifi_score(self.p_xy_m, start_wifi, g.cell_m)
+            self._last_obs_ms["f3"] = int(t0_ms if start_wifi_t_ms is None else start_wifi_t_ms)
         self.filter = ViterbiFilter(g, prior, beam=model.beam)
         self.forward = ForwardFilter(g, prior, beam=model.beam) if filtered else None
         c = g.cell_m
@@ -161,21 +184,40 @@ class Tracker:
             f2 = f_step(self.offsets_m, step2[None], inc2[None], self.sig)[0]
         return w1 * f1 + w2 * f2, f1, f2
 
-    def state_scores(self, wifi=None, peak=None) -> np.ndarray | None:
-        """(V,) weighted state scores from a WiFi prediction and/or an RSSI peak, or None."""
+    def evidence_share(self, feature: str, t_ms: int) -> float:
+        """Share of a WiFi observation's evidence (f3 or f4) measured at ``t_ms`` that is new
+        given the previous one of the same feature (1 for the first), and remember its time."""
+        last = self._last_obs_ms[feature]
+        share = evidence_share(None if last is None else (int(t_ms) - last) / 1000.0, self.wifi_corr_s)
+        self._last_obs_ms[feature] = int(t_ms)
+        self.shares.append((feature, int(t_ms), share))
+        return share
+
+    def state_scores(self, wifi=None, peak=None, wifi_t_ms: int | None = None,
+                     peak_t_ms: int | None = None) -> np.ndarray | None:
+        """(V,) weighted state scores from a WiFi prediction and/or an RSSI peak, or None; each
+        weighted by its feature weight and its share of new evidence (:meth:`evidence_share`,
+        which needs the observations' times and advances the discount's clock)."""
+        if (wifi is not None and wifi_t_ms is None) or (peak is not None and peak_t_ms is None):
+            raise ValueError("state_scores needs the time (ms) each WiFi observation was measured")
         out = None
         if wifi is not None and self.w["f3"] != 0.0:
-            out = self.w["f3"] * wifi_score(self.p_xy_m, wifi, self._c)
+            share = self.evidence_share("f3", wifi_t_ms)
+            out = (self.w["f3"] * share) * wifi_score(self.p_xy_m, wifi, self._c)
         if peak is not None and self.w["f4"] != 0.0:
-            f4 = self.w["f4"] * f_gaussian_position(self.p_xy_m, peak[0], np.eye(2) * peak[1] ** 2)
+            share = self.evidence_share("f4", peak_t_ms)
+            f4 = (self.w["f4"] * share) * f_gaussian_position(self.p_xy_m, peak[0], np.eye(2) * peak[1] ** 2)
             out = f4 if out is None else out + f4
         return out
 
-    def step(self, step_xy_m: np.ndarray, t_ms: int, wifi=None, peak=None, summarise: bool = True) -> TrackPoint:
+    def step(self, step_xy_m: np.ndarray, t_ms: int, wifi=None, peak=None, summarise: bool = True,
+             wifi_t_ms: int | None = None, peak_t_ms: int | None = None) -> TrackPoint:
         """One step; ``summarise=False`` skips the column's Gaussian summary (``summary`` None,
-        ``vertex`` the best δ) for a caller that reads only some steps (suggestions' sub-steps)."""
+        ``vertex`` the best δ) for a caller that reads only some steps (suggestions' sub-steps).
+        ``wifi_t_ms``/``peak_t_ms``: when the scan was measured (default ``t_ms``)."""
         trans, _, _ = self.transition_scores(step_xy_m)
-        state = self.state_scores(wifi, peak)
+        state = self.state_scores(wifi, peak, t_ms if wifi_t_ms is None else wifi_t_ms,
+                                  t_ms if peak_t_ms is None else peak_t_ms)
         self.filter.step(trans, state)
         self.trans_rows.append(trans)
         self.state_rows.append(state)
@@ -222,11 +264,14 @@ def smooth(tracker: Tracker) -> tuple[np.ndarray, list[GaussianSummary]]:
 
 def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, fingerprints=None,
                heading: str = "rotation_vector", estimate: str = "mean",
-               on_step: Callable[[int, int], None] | None = None) -> TrackResult:
+               on_step: Callable[[int, int], None] | None = None,
+               wifi_corr_s: float | None = None) -> TrackResult:
     """Track a parsed :class:`posefix.mapmatch.sensors.Walk` (its waypoints are not read).
 
     ``fingerprints``: an optional :class:`posefix.mapmatch.fingerprints.FingerprintMap`
-    giving f3 (and f4) observations, each attached to the step nearest in time.
+    giving f3 (and f4) observations, each attached to the step nearest in time and
+    discounted by the time since the previous one (``wifi_corr_s``: τ in seconds, None =
+    the model's, 0 = scans independent; see :class:`Tracker`).
     ``estimate``: ``"mean"`` (default) reports the smoothed posterior mean and its
     ellipse (:func:`smooth`); ``"viterbi"`` the most likely path's vertices with the
     online columns' ellipses. ``vertex`` is the Viterbi path in both cases.
@@ -240,24 +285,29 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     steps = steps_from_walk(walk, heading=heading)
     vec = steps.vectors_m(model.step_model)
     t0 = int(walk.acc[0, 0])
+    # Observations per step: (observation, the time it was measured) — the time for the
+    # WiFi discount. Two scans nearest the same step: the later is kept.
     wifi_at: dict[int, tuple] = {}
     peak_at: dict[int, tuple] = {}
-    start_wifi = None
+    start_wifi, start_wifi_t = None, None
     if fingerprints is not None and len(steps):
         eps = fingerprints.outlier_frac if getattr(fingerprints, "robust", False) else 0.0
         for t_ms, mean, cov in fingerprints.predict_walk(walk, model.graph.p_xy_m):
             if start_xy_m is None and start_wifi is None and not wifi_at and t_ms <= steps.t_ms[0]:
-                start_wifi = (mean, cov, eps)  # before the first step: the start prior
+                start_wifi, start_wifi_t = (mean, cov, eps), int(t_ms)  # before the first step: the start prior
                 continue
-            wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (mean, cov, eps)
+            wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = ((mean, cov, eps), int(t_ms))
         for t_ms, xy, sig in fingerprints.peaks_in_walk(walk):
-            peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = (xy, sig)
-    tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0, start_wifi=start_wifi)
+            peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = ((xy, sig), int(t_ms))
+    tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0, start_wifi=start_wifi, wifi_corr_s=wifi_corr_s,
+                 start_wifi_t_ms=start_wifi_t)
     pts = [gaussian_summary(tr.p_xy_m, tr.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))]
     online = [pts[0].mean_xy_m]
     tic = time.process_time()  # CPU time of this process: "one core", whatever else runs
     for i in range(len(steps)):
-        tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi_at.get(i), peak=peak_at.get(i))
+        wifi, wifi_t = wifi_at.get(i, (None, None))
+        peak, peak_t = peak_at.get(i, (None, None))
+        tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi, peak=peak, wifi_t_ms=wifi_t, peak_t_ms=peak_t)
         pts.append(tp.summary)
         online.append(tp.summary.mean_xy_m)
         if on_step is not None:
