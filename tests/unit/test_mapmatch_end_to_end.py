@@ -92,3 +92,32 @@ def test_cli_train_learns_the_step_scale_unless_told_not_to(model, tmp_path):
     h0 = load_model(tmp_path / "m0.npz").step_model.height_m
     assert h0 == model.step_model.height_m
     assert 0.7 <= h1 / h0 <= 1.4 and h1 != h0
+
+
+def test_cli_track_with_fingerprints_takes_the_wifi_correlation_time(model, tmp_path):
+    from posefix.cli import _register, app
+
+    _register()
+    r = CliRunner()
+    save_model(model, tmp_path / "m.npz")
+    others = [str(p) for p in sorted((FLOOR / "walks").glob("*.txt")) if p != WALK][:12]
+    out = r.invoke(app, ["mapmatch", "fingerprints", "--floor", str(FLOOR), *sum((["--walks", w] for w in others), []),
+                         "--output", str(tmp_path / "fp.npz")])
+    assert out.exit_code == 0, out.output
+    rows = {}
+    for tau in (None, "0", "60"):
+        extra = [] if tau is None else ["--wifi-corr-s", tau]
+        out = r.invoke(app, ["mapmatch", "track", str(WALK), "--model", str(tmp_path / "m.npz"), "--fingerprints",
+                             str(tmp_path / "fp.npz"), "--start", "81.317215,93.31349", *extra,
+                             "--output", str(tmp_path / f"t{tau}.csv")])
+        assert out.exit_code == 0, out.output
+        rows[tau] = np.loadtxt(tmp_path / f"t{tau}.csv", delimiter=",", skiprows=1, usecols=(1, 2, 5))
+    # the default is the model's 20 s; counting every scan as independent (0) trusts WiFi more
+    # (tighter ellipses); another correlation time reaches the tracker too
+    assert not np.allclose(rows[None][:, :2], rows["0"][:, :2])
+    assert np.median(rows["0"][:, 2]) < np.median(rows[None][:, 2])
+    assert not np.allclose(rows[None], rows["60"])
+    out = r.invoke(app, ["mapmatch", "track", str(WALK), "--model", str(tmp_path / "m.npz"), "--wifi-corr-s", "-1",
+                         "--output", str(tmp_path / "bad.csv")])
+    assert out.exit_code != 0 and "wifi-corr-s" in out.output
+    assert not (tmp_path / "bad.csv").exists()

@@ -164,6 +164,10 @@ def track(
     heading: str = typer.Option("rotation_vector", "--heading", help="Heading source: rotation_vector or gyro_mag."),
     wifi_method: str = typer.Option("knn", "--wifi-method", help="WiFi position from fingerprints: knn (weighted k-NN, default), pathloss or hybrid."),
     estimate: str = typer.Option("mean", "--estimate", help="Rows: 'mean' (smoothed posterior mean) or 'viterbi' (most likely path)."),
+    wifi_corr_s: Optional[float] = typer.Option(
+        None, "--wifi-corr-s", min=0.0,
+        help="Correlation time of WiFi errors, seconds: scans closer than this share evidence "
+             "(default: the model's, 20 s; 0 counts every scan as independent)."),
 ) -> None:
     """Track a walk: one row per step with the smoothed position and its 1σ error ellipse."""
     with _user_errors():
@@ -184,7 +188,7 @@ def track(
             bar.update(i - bar.n)
 
         res = track_walk_file(model, walk, start_xy_m=xy, fingerprints=fp, heading=heading, estimate=estimate,
-                              on_step=on_step)
+                              on_step=on_step, wifi_corr_s=wifi_corr_s)
         bar.close()
         with _atomic(output, ".csv") as tmp:
             write_track_csv(tmp, res, model.graph.georef)

@@ -111,10 +111,11 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
 
 def track_walk_file(model: Model, walk_path: str | Path, start_xy_m=None, fingerprints=None,
                     heading: str = "rotation_vector", estimate: str = "mean",
-                    on_step: Callable[[int, int], None] | None = None) -> TrackResult:
+                    on_step: Callable[[int, int], None] | None = None,
+                    wifi_corr_s: float | None = None) -> TrackResult:
     """Read a walk file and track it (see :func:`posefix.mapmatch.tracker.track_walk`)."""
     return track_walk(model, read_walk(walk_path), start_xy_m=start_xy_m, fingerprints=fingerprints,
-                      heading=heading, estimate=estimate, on_step=on_step)
+                      heading=heading, estimate=estimate, on_step=on_step, wifi_corr_s=wifi_corr_s)
 
 
 def write_track_csv(path: str | Path, res: TrackResult, georef: GeoRef | None) -> None:
