@@ -163,13 +163,17 @@ def test_kept_linearisation_is_the_fresh_model_of_the_relative_and_gravity_terms
     assert not lin.matches(dataclasses.replace(terms, grav_w=terms.grav_w * 2.0))
 
 
-def test_local_newton_from_the_kept_linearisation_matches_linearising_the_window():
-    terms = random_terms(k=300, n_user=6, seed=9)
+def _solved_then_one_more_edit(seed: int, lo: int = 90, hi: int = 210):
+    """A 300-keyframe problem solved with its linearisation kept, then one more edit: the
+    window lo..hi of the new problem (terms and held ends) beside the old solution."""
+    terms = random_terms(k=300, n_user=6, seed=seed)
     x_star, r = S.solve_banded(terms, linearise=True)
-    lin = r.extra["linearisation"]
-    more = _one_more_edit(terms, x_star)
-    lo, hi = 90, 210
-    sub, fixed = _window(more, lo, hi)
+    sub, fixed = _window(_one_more_edit(terms, x_star), lo, hi)
+    return x_star, r.extra["linearisation"], sub, fixed, lo, hi
+
+
+def test_local_newton_from_the_kept_linearisation_matches_linearising_the_window():
+    x_star, lin, sub, fixed, lo, hi = _solved_then_one_more_edit(seed=9)
     x0 = x_star.reshape(-1, 6)[lo:hi + 1].ravel()
     x_fresh, r_fresh = S.solve_local_newton(sub, x0, fixed)
     x_kept, r_kept = S.solve_local_newton(sub, x0, fixed, linearisation=lin.window(lo, hi))
@@ -183,12 +187,7 @@ def test_local_newton_from_the_kept_linearisation_matches_linearising_the_window
 def test_a_held_keyframe_moved_since_the_linearisation_still_pulls_its_neighbour():
     # a drag: the window solved before moved keyframes away from the kept linearisation point,
     # among them the one now held at the boundary of the next window
-    terms = random_terms(k=300, n_user=6, seed=10)
-    x_star, r = S.solve_banded(terms, linearise=True)
-    lin = r.extra["linearisation"]
-    more = _one_more_edit(terms, x_star)
-    lo, hi = 90, 210
-    sub, fixed = _window(more, lo, hi)
+    x_star, lin, sub, fixed, lo, hi = _solved_then_one_more_edit(seed=10)
     x0 = x_star.reshape(-1, 6)[lo:hi + 1].copy()
     x0[:12, :3] += [0.8, -0.5, 0.0]  # held keyframe and its neighbours moved earlier (positions only)
     x0[0, :3] += [0.3, 0.2, 0.0]  # the held one a little more: its relative term to the next is stretched

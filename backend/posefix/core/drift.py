@@ -312,11 +312,9 @@ def gnss_steps(u_h: np.ndarray, window: int = 30, n_sigma: float = 4.0, min_jump
     W = int(window)
     if k < 4 * W:
         return empty
-    ok = np.all(np.isfinite(u_h), axis=1)
-    du = np.diff(u_h[ok], axis=0)
-    if len(du) < 2:
+    if np.count_nonzero(np.all(np.isfinite(u_h), axis=1)) < 3:
         return empty
-    sigma = float(1.4826 * np.median(np.abs(du - np.median(du, axis=0))) / np.sqrt(2.0))
+    sigma = white_sigma(u_h)
     sigma_diff = MEDIAN_EFFICIENCY * sigma * np.sqrt(2.0 / W)
     threshold = max(n_sigma * sigma_diff * np.sqrt(2.0), min_jump_m)
     from numpy.lib.stride_tricks import sliding_window_view
