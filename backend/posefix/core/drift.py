@@ -49,6 +49,7 @@ Vertical: only 3-D edits observe the vertical bias; without them the vertical is
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -320,7 +321,9 @@ def gnss_steps(u_h: np.ndarray, window: int = 30, n_sigma: float = 4.0, min_jump
     from numpy.lib.stride_tricks import sliding_window_view
 
     win = sliding_window_view(u_h, W, axis=0)  # (k-W+1, 2, W): window starting at each row
-    med = np.nanmedian(win, axis=2)  # median of u[i:i+W]
+    with warnings.catch_warnings():  # a window inside a GNSS outage has no fix: its median is NaN, as meant
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(win, axis=2)  # median of u[i:i+W]
     # before(i) = median u[i-W:i] = med[i-W]; after(i) = med[i]; later(i) = med[i+W]
     i = np.arange(W, k - 2 * W + 1)
     before, after, later = med[i - W], med[i], med[i + W]
@@ -578,16 +581,19 @@ def levels_bridged(levels: GnssLevels, kf_t_s: np.ndarray, big_m: float = 5.0, s
     for j, J, a, b in zip(levels.jumps, levels.jump_m, prv, nxt):
         if np.hypot(*J) <= big_m or b - j < gap + 2 * W or j - a < gap + W // 2:
             continue
-        before = np.nanmedian(u[j - gap - W // 2:j - gap], axis=0)
-        soon = np.nanmedian(u[j + gap:j + gap + W // 2], axis=0)
-        late = np.nanmedian(u[j + gap + W:j + gap + 2 * W], axis=0)
+        with warnings.catch_warnings():  # a stretch inside a GNSS outage: NaN, skipped below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            before = np.nanmedian(u[j - gap - W // 2:j - gap], axis=0)
+            soon = np.nanmedian(u[j + gap:j + gap + W // 2], axis=0)
+            late = np.nanmedian(u[j + gap + W:j + gap + 2 * W], axis=0)
         if not (np.all(np.isfinite(before)) and np.all(np.isfinite(soon)) and np.all(np.isfinite(late))):
             continue
         votes.append(np.hypot(*(late - soon)) < 0.5 * np.hypot(*(soon - before)))
     return len(votes) >= 2 and float(np.mean(votes)) >= share
 
 
-def open_sky_information(kf_t_s: np.ndarray, c_m: np.ndarray, var_c: np.ndarray, jumps: np.ndarray) -> np.ndarray:
+def open_sky_information(kf_t_s: np.ndarray, c_m: np.ndarray, var_c: np.ndarray, breaks: np.ndarray,
+                         half: np.ndarray) -> np.ndarray:
     """(k,) information (1/m^2) on a zero level, one keyframe per level (between jumps).
 
     Between canyons the receiver sees open sky and its fix is unbiased to about a metre (the
@@ -600,11 +606,10 @@ def open_sky_information(kf_t_s: np.ndarray, c_m: np.ndarray, var_c: np.ndarray,
     """
     k = len(kf_t_s)
     info = np.zeros(k)
-    dt = float(np.median(np.diff(kf_t_s))) if k > 1 else 1.0
-    ramp = max(int(round(LEVEL_RAMP_S / max(dt, 1e-9))), 1)
-    bounds = np.concatenate([[0], np.asarray(jumps, dtype=np.int64), [k]])
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
-        a, b = lo + ramp, hi - ramp
+    bounds = np.concatenate([[0], np.asarray(breaks, dtype=np.int64), [k]])
+    widths = np.concatenate([[0], np.asarray(half, dtype=np.int64), [0]])
+    for lo, hi, h_lo, h_hi in zip(bounds[:-1], bounds[1:], widths[:-1], widths[1:]):
+        a, b = lo + h_lo, hi - h_hi
         if b - a < 2:
             continue
         c_s = np.mean(c_m[a:b], axis=0)
@@ -636,7 +641,7 @@ def _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels: GnssLevels, sig
     if prev is not None and prev.loc_sigma_h_m is not None and len(prev.loc_sigma_h_m) == len(kf_t_s):
         return _levels_near_new_edits(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, u_single, prev, d_m)
     c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e)
-    info = open_sky_information(kf_t_s, c, var_c, levels.jumps)
+    info = open_sky_information(kf_t_s, c, var_c, *level_breaks(levels, ramp_keyframes(kf_t_s)))
     if np.any(info > 0):
         c, _, var_c = solve_levels(kf_t_s, levels, edit_kf, y, sigma_u, sigma_e, level_info=info)
     loc_sigma = np.where(levels.use, np.sqrt(levels.sigma_w_m**2 + var_c), np.inf)
@@ -1024,6 +1029,32 @@ def gnss_levels(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> GnssLevel
     return dataclasses.replace(levels, bridged=levels_bridged(levels, kf_t_s))
 
 
+def ramp_keyframes(kf_t_s: np.ndarray) -> int:
+    """``LEVEL_RAMP_S`` in keyframes at the run's typical spacing (at least 1)."""
+    dt = float(np.median(np.diff(kf_t_s))) if len(kf_t_s) > 1 else 1.0
+    return max(int(round(LEVEL_RAMP_S / max(dt, 1e-9))), 1)
+
+
+def level_breaks(levels: GnssLevels, ramp: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where the level may change: centres (b,) and half-widths (b,) in keyframes, sorted.
+
+    Each jump found, over its ramp; and each stretch without a usable fix that lasts at least
+    a ramp (a tunnel, a receiver outage), over its length plus a ramp: nothing says the fix
+    kept its level while it was gone.
+    """
+    k = len(levels.use)
+    missing = np.flatnonzero(np.diff(np.concatenate([[0], (~levels.use).astype(np.int8), [0]])))
+    starts, ends = missing[0::2], missing[1::2]  # runs [start, end) of keyframes without a usable fix
+    long_ = (ends - starts) >= ramp
+    starts, ends = starts[long_], ends[long_]
+    keep = (starts > 0) & (ends < k)  # a run at either end of the run separates nothing
+    starts, ends = starts[keep], ends[keep]
+    centres = np.concatenate([np.asarray(levels.jumps, dtype=np.int64), (starts + ends) // 2])
+    half = np.concatenate([np.full(len(levels.jumps), ramp, dtype=np.int64), (ends - starts + 1) // 2 + ramp])
+    order = np.argsort(centres, kind="stable")
+    return centres[order], half[order]
+
+
 def _level_blocks(t_s, levels: GnssLevels, edit_kf, sigma_u, sigma_e, ramp: int):
     """Information matrix of the level model as 3x3 blocks: diagonal (k,3,3) and below it (k-1,3,3), states [e, v, c]."""
     k = len(t_s)
@@ -1033,8 +1064,8 @@ def _level_blocks(t_s, levels: GnssLevels, edit_kf, sigma_u, sigma_e, ramp: int)
     ie = 1.0 / (1e-6 * dt + 1e-9)  # e moves through v; a trace of its own noise keeps H definite
     iv = 1.0 / (POSE_VEL_SIGMA_MPS**2 * (1.0 - b * b))
     q_c = LEVEL_WANDER_M2_PER_S * dt
-    for j in levels.jumps:
-        lo, hi = max(int(j) - ramp, 0), min(int(j) + ramp, k - 1)
+    for j, h in zip(*level_breaks(levels, ramp)):
+        lo, hi = max(int(j - h), 0), min(int(j + h), k - 1)
         q_c[lo:hi] += LEVEL_JUMP_SIGMA_M**2 / max(hi - lo, 1)
     ic = 1.0 / q_c
     Dg = np.zeros((k, 3, 3))
@@ -1078,8 +1109,7 @@ def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e:
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
     k = len(t_s)
-    dt = float(np.median(np.diff(t_s))) if k > 1 else 1.0
-    ramp = max(int(round(LEVEL_RAMP_S / max(dt, 1e-9))), 1)
+    ramp = ramp_keyframes(t_s)
     Dg, L, w = _level_blocks(t_s, levels, edit_kf, sigma_u, sigma_e, ramp)
     if level_info is not None:
         Dg[:, 2, 2] += level_info
@@ -1099,23 +1129,24 @@ def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e:
             ab[5 + r - (3 + s), np.arange(1, k) * 3 + s] = L[:, s, r]
     cb = cholesky_banded(ab, check_finite=False)
     x = cho_solve_banded((cb, False), g.reshape(n, 2), check_finite=False).reshape(k, 3, 2)
-    var_c = level_variance_at_levels(cb, levels.jumps, ramp) if want_variance else None
+    var_c = level_variance_at_levels(cb, *level_breaks(levels, ramp)) if want_variance else None
     return x[:, 2], x[:, 0], var_c
 
 
-def level_variance_at_levels(cb: np.ndarray, jumps: np.ndarray, ramp: int) -> np.ndarray:
+def level_variance_at_levels(cb: np.ndarray, breaks: np.ndarray, half: np.ndarray) -> np.ndarray:
     """Marginal variance of the level (k,) from the banded Cholesky factor ``cb`` of the information matrix.
 
     Between jumps the level is one constant (its wander is centimetres over a run), so its
     variance is the same at every keyframe of a level: it is solved exactly (a column of the
-    inverse, ``H^-1 e_i``) at the middle of each level and held over it, and at each jump,
-    whose value (the peak: the level is free there) the ramp around it takes.  O(k (levels +
+    inverse, ``H^-1 e_i``) at the middle of each level and held over it, and at each break
+    (``level_breaks``: centres, half-widths), whose value (the peak: the level is free there)
+    the keyframes around it take.  O(k (levels +
     jumps)) instead of a per-keyframe recursion.
     """
     from scipy.linalg import cho_solve_banded
 
     k = cb.shape[1] // 3
-    jumps = np.asarray(jumps, dtype=np.int64)
+    jumps = np.asarray(breaks, dtype=np.int64)
     bounds = np.concatenate([[0], jumps, [k]])
     mids = (bounds[:-1] + bounds[1:]) // 2
     at = np.unique(np.clip(np.concatenate([mids, jumps]), 0, k - 1))
@@ -1126,6 +1157,6 @@ def level_variance_at_levels(cb: np.ndarray, jumps: np.ndarray, ramp: int) -> np
     seg = np.searchsorted(jumps, np.arange(k), side="right")  # level of each keyframe
     var = np.empty(k)
     var[:] = exact[np.searchsorted(at, mids)][seg]
-    for j in jumps:  # the ramp, where the level moves: its peak, at the jump
-        var[max(j - ramp, 0):j + ramp + 1] = exact[np.searchsorted(at, j)]
+    for j, h in zip(jumps, half):  # where the level moves: its peak, at the break
+        var[max(j - h, 0):j + h + 1] = exact[np.searchsorted(at, min(j, k - 1))]
     return np.maximum(var, 0.0)
