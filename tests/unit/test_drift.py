@@ -390,3 +390,20 @@ def test_a_gnss_outage_across_a_level_change_frees_the_level():
 
     assert rmse(p) < 0.7 * rmse(naive_positions(problem, sim)), (rmse(p), rmse(naive_positions(problem, sim)))
     assert rmse(p) < rmse(problem.p_enu_m) / 4.0
+
+
+def test_one_edit_on_a_bridged_run_lets_the_fixes_correct_all_of_it():
+    # the fix's steps and the pose's bridging are read from the run itself; one edit anchors
+    # the levels (with the open-sky prior), where the old model let canyon offsets pull the run
+    from benchmarks.engine import edit_set
+    from posefix.io.edits import EditSet
+
+    sim = simulate(duration_s=1800.0, rate_hz=10.0, edit_every_s=100.0, seed=11, regime="canyon_ins")
+    problem = prepare(sim.run)
+    sol = problem.solve(EditSet(moves=edit_set(sim).moves[:1]))
+    assert sol.drift.loc_sigma_h_m is not None
+    truth = geodesy.geodetic_to_enu(sim.truth.lat_deg, sim.truth.lon_deg, sim.truth.alt_m, problem.origin)
+    out = problem.full_run(sol).run
+    p = geodesy.geodetic_to_enu(out.lat_deg, out.lon_deg, out.alt_m, problem.origin)
+    err = float(np.sqrt(np.mean(np.sum((p - truth)[:, :2] ** 2, axis=1))))
+    assert err < float(np.sqrt(np.mean(np.sum((problem.p_enu_m - truth)[:, :2] ** 2, axis=1)))) / 3.0, err

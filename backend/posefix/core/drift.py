@@ -37,7 +37,8 @@ neighbouring keyframes (the reported pose keeps its local shape, so g - p~ varie
    raised to what the edits show, placed where the error most likely changed
    (``shape_change_evidence``), and the fixes inside are dropped.
 5. A pose that bridged urban-canyon offsets (``gnss_levels``, ``levels_bridged``): where the
-   fix jumps onto levels and back while the pose keeps its shape, a joint smoother of the
+   fix steps persistently against the pose (``gnss_steps``) and the pose kept its shape across
+   every large step (read from the run itself: one edit is enough), a joint smoother of the
    fix's piecewise-constant level and the pose's smooth error (section "GNSS levels") gives
    the level at every keyframe; the location term then reads the level-corrected mean of
    the keyframe's fixes with the run's own white-noise sigma, so the fixes between edits
@@ -533,10 +534,10 @@ def estimate_drift(
     if np.any(suspect > 0):
         detected = True
     loc_sigma = None
-    if callable(levels) and len(steps.index):
-        levels = levels()  # found from every sample once per run: only when the edits confirmed steps
-    if isinstance(levels, GnssLevels) and len(steps.index) and levels.bridged:
-        # the edits confirmed steps of the fix, and the pose bridged every large one
+    if callable(levels) and len(all_steps.index):
+        levels = levels()  # found from every sample once per run: only when the fix shows persistent steps
+    if isinstance(levels, GnssLevels) and len(all_steps.index) and levels.bridged:
+        # the fix steps persistently against the pose, and the pose bridged every large step
         bias[:, :2], var_h, loc_sigma = _level_bias(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, levels, sigma_u_h_m,
                                                     prior_sigma_m, frozen, d)
         detected = True
