@@ -348,10 +348,15 @@ def gnss_steps(u_h: np.ndarray, window: int = 30, n_sigma: float = 4.0, min_jump
     return GnssSteps(idx, jumps, level, transition, float(sigma_diff * np.sqrt(2.0)))
 
 
+def keyframes_in(seconds: float, kf_t_s: np.ndarray, at_least: int = 1) -> int:
+    """``seconds`` in keyframes at the run's typical keyframe spacing (at least ``at_least``)."""
+    dt = float(np.median(np.diff(kf_t_s))) if len(kf_t_s) > 1 else 1.0
+    return max(int(round(seconds / max(dt, 1e-9))), at_least)
+
+
 def step_window(kf_t_s: np.ndarray) -> int:
     """Keyframes in ``STEP_WINDOW_S`` at the run's typical keyframe spacing (at least 5)."""
-    dt = float(np.median(np.diff(kf_t_s))) if len(kf_t_s) > 1 else 1.0
-    return max(int(round(STEP_WINDOW_S / max(dt, 1e-9))), 5)
+    return keyframes_in(STEP_WINDOW_S, kf_t_s, 5)
 
 
 def steps_confirmed_by_edits(steps: GnssSteps, edit_kf: np.ndarray, d_h: np.ndarray, noise_var: float, k: int) -> GnssSteps:
@@ -572,9 +577,7 @@ def levels_bridged(levels: GnssLevels, kf_t_s: np.ndarray, big_m: float = 5.0, s
     fix keeps its level.  Jumps with another one too close after them to tell are skipped.
     """
     k = len(kf_t_s)
-    dt = float(np.median(np.diff(kf_t_s))) if k > 1 else 1.0
-    W = max(int(round(LEVEL_WINDOW_S / max(dt, 1e-9))), 5)
-    gap = max(int(round(LEVEL_GAP_S / max(dt, 1e-9))), 1)
+    W, gap = keyframes_in(LEVEL_WINDOW_S, kf_t_s, 5), keyframes_in(LEVEL_GAP_S, kf_t_s)
     u = np.where(levels.use[:, None], levels.u_m, np.nan)
     nxt = np.append(levels.jumps[1:], k)
     prv = np.insert(levels.jumps[:-1], 0, 0)
@@ -1012,9 +1015,7 @@ def gnss_levels(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> GnssLevel
     """The level model's data for keyframes at kf_t_s (k,), from all samples' u = g - p~ (n,2)."""
     u_m = keyframe_means(t_s, u[:, :2], kf_t_s)
     sigma_w = max(white_sigma(u_m), 0.05)
-    dt = float(np.median(np.diff(kf_t_s))) if len(kf_t_s) > 1 else 1.0
-    window = max(int(round(LEVEL_WINDOW_S / max(dt, 1e-9))), 5)
-    gap = max(int(round(LEVEL_GAP_S / max(dt, 1e-9))), 1)
+    window, gap = keyframes_in(LEVEL_WINDOW_S, kf_t_s, 5), keyframes_in(LEVEL_GAP_S, kf_t_s)
     ok = np.all(np.isfinite(u_m), axis=1)
     use = ok.copy()
     if ok.sum() > 9:
@@ -1032,8 +1033,7 @@ def gnss_levels(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> GnssLevel
 
 def ramp_keyframes(kf_t_s: np.ndarray) -> int:
     """``LEVEL_RAMP_S`` in keyframes at the run's typical spacing (at least 1)."""
-    dt = float(np.median(np.diff(kf_t_s))) if len(kf_t_s) > 1 else 1.0
-    return max(int(round(LEVEL_RAMP_S / max(dt, 1e-9))), 1)
+    return keyframes_in(LEVEL_RAMP_S, kf_t_s)
 
 
 def level_breaks(levels: GnssLevels, ramp: int) -> tuple[np.ndarray, np.ndarray]:
