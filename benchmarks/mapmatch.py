@@ -34,7 +34,9 @@ posterior means (forward-backward); time per step is CPU time of one process (on
 "online" the tracker's step, "offline" with the back-track and smoothing. Model size is
 the device file (.npz).
 
-Data: ../shared/data/indoor-site1-F1 (or $POSEFIX_SHARED_DATA/indoor-site1-F1).
+Data: the full floor (30 walks) at $POSEFIX_SHARED_DATA/indoor-site1-F1 or ../shared/data/indoor-site1-F1
+when present; otherwise the repository's data/indoor-site1-F1 (3 walks: the run works on a fresh
+clone, the figures are then only indicative).
 """
 
 from __future__ import annotations
@@ -54,11 +56,15 @@ TARGET_MS_PER_STEP = 2.0
 NAIVE_PDR = (4.4, 8.8)  # README: fixed 0.7 m stride, rotation-vector heading, no map
 
 
-def shared_data() -> Path:
+def floor_dir() -> Path:
+    """The full floor when it is beside the repository, else the repository's 3-walk copy."""
+    repo = Path(__file__).resolve().parents[1]
     env = os.environ.get("POSEFIX_SHARED_DATA")
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    full = Path(env) if env else repo.parent / "shared" / "data"
+    if (full / "indoor-site1-F1" / "walks").is_dir():
+        return full / "indoor-site1-F1"
+    print(f"note: no full floor at {full}; using the repository's data/indoor-site1-F1 (3 walks)", file=sys.stderr)
+    return repo / "data" / "indoor-site1-F1"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,10 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     from posefix.mapmatch.fingerprints import build_fingerprints
     from posefix.mapmatch.model import model_bytes
 
-    floor = shared_data() / "indoor-site1-F1"
+    floor = floor_dir()
     files = sorted(glob.glob(str(floor / "walks" / "*.txt")))
     if not files:
-        print(f"error: no walks under {floor}/walks (set POSEFIX_SHARED_DATA)", file=sys.stderr)
+        print(f"error: no walks under {floor}/walks ", file=sys.stderr)
         return 1
     if args.quick:
         files = files[::3]

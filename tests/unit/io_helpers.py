@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -14,20 +13,12 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def comma2k19_segment() -> Path:
-    """The comma2k19 example segment: the repo's copy (data/), else the shared data folder."""
-    local = REPO / "data" / "comma2k19"
-    if (local / "segment" / "global_pose" / "frame_times").is_file():
-        return local
-    shared = Path(os.environ.get("POSEFIX_SHARED_DATA", REPO.parent / "shared" / "data"))
-    return shared / "comma2k19-example"
+    """The comma2k19 example segment shipped in data/ (see data/NOTICE.md)."""
+    return REPO / "data" / "comma2k19"
 
 
 def osm_extract() -> Path:
-    local = REPO / "data" / "osm" / "helsinki.osm.pbf"
-    if local.is_file():
-        return local
-    shared = Path(os.environ.get("POSEFIX_SHARED_DATA", REPO.parent / "shared" / "data"))
-    return shared / "osm" / "helsinki.osm.pbf"
+    return REPO / "data" / "osm" / "helsinki.osm.pbf"
 
 
 def yaw_quat(yaw_rad: np.ndarray) -> np.ndarray:

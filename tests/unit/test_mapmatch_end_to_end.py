@@ -1,6 +1,5 @@
-"""End to end on one real walk of the shared floor: build, save/load, track (API and CLI), evaluate."""
+"""End to end on one real walk of the floor shipped in data/: build, save/load, track (API and CLI), evaluate."""
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -12,14 +11,12 @@ from posefix.mapmatch.evaluate import evaluate_track
 from posefix.mapmatch.model import ModelFormatError
 
 REPO = Path(__file__).resolve().parents[2]
-FLOOR = Path(os.environ.get("POSEFIX_SHARED_DATA", REPO.parent / "shared" / "data")) / "indoor-site1-F1"
+FLOOR = REPO / "data" / "indoor-site1-F1"
 WALK = FLOOR / "walks" / "5dd9e7aac5b77e0006b1732b.txt"
 
 
 @pytest.fixture(scope="module")
 def model():
-    if not WALK.is_file():
-        pytest.fail(f"shared data missing at {FLOOR}: set POSEFIX_SHARED_DATA")
     return build_model(FLOOR)
 
 

@@ -110,14 +110,13 @@ def test_step_length_hard_em_recovers_gamma():
 
 
 def test_step_scale_is_the_ratio_of_surveyed_to_dead_reckoned_distance():
-    import os
     from pathlib import Path
 
     from posefix.mapmatch.learn import learn_step_scale, waypoint_segments
     from posefix.mapmatch.sensors import read_walk, steps_from_walk
 
-    floor = Path(os.environ.get("POSEFIX_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
-    walk = read_walk(floor / "indoor-site1-F1" / "walks" / "5dd9e7aac5b77e0006b1732b.txt")
+    floor = Path(__file__).resolve().parents[2] / "data" / "indoor-site1-F1"
+    walk = read_walk(floor / "walks" / "5dd9e7aac5b77e0006b1732b.txt")
     sm0 = StepModel()
     sm1 = learn_step_scale([walk], sm0)
     dd, dw = waypoint_segments([walk], sm0)

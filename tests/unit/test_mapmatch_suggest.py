@@ -10,7 +10,7 @@ from posefix.mapmatch.osm import OsmWay, local_georef, raster_from_ways, read_os
 from posefix.mapmatch.suggest import drivable_area, drivable_cache_info, heading_from_quaternion_wxyz, suggest_for_run
 
 REPO = Path(__file__).resolve().parents[2]
-PBF = Path(os.environ.get("POSEFIX_SHARED_DATA", REPO.parent / "shared" / "data")) / "osm" / "helsinki.osm.pbf"
+PBF = REPO / "data" / "osm" / "helsinki.osm.pbf"
 BBOX = (24.935, 60.164, 24.953, 60.179)
 
 
@@ -30,8 +30,6 @@ def test_heading_from_quaternion():
 
 
 def test_suggestions_pull_a_drifted_drive_onto_the_street():
-    if not PBF.is_file():
-        pytest.fail(f"shared data missing at {PBF}: set POSEFIX_SHARED_DATA")
     ways = read_osm_ways(PBF, BBOX)
     assert ways and all(w.highway != "footway" for w in ways)
     way = max((w for w in ways if w.highway in ("primary", "secondary")), key=lambda w: len(w.lonlat_deg))
@@ -54,8 +52,6 @@ def test_suggestions_pull_a_drifted_drive_onto_the_street():
 
 
 def test_drivable_area_is_cached_per_extract_content_box_and_cell(tmp_path):
-    if not PBF.is_file():
-        pytest.fail(f"shared data missing at {PBF}: set POSEFIX_SHARED_DATA")
     drivable_cache_info(clear=True)
     box = (24.940, 60.166, 24.946, 60.170)
     r1, g1 = drivable_area(PBF, box, cell_m=4.0)
