@@ -99,11 +99,7 @@ def pg_url() -> str | None:
 
 # ------------------------------------------------------------------ fixtures
 
-import http.server
 import shutil
-import socketserver
-import threading
-import time
 import uuid
 from collections.abc import Iterator
 
@@ -226,54 +222,6 @@ def register(client: TestClient, **body: object) -> dict:
     response = client.post("/api/v1/tile-sources", json=body)
     assert response.status_code == 201, response.text
     return response.json()
-
-
-class _UpstreamHandler(http.server.BaseHTTPRequestHandler):
-    """A real XYZ server on loopback: /{z}/{x}/{y}.png; its behaviour is set on the server."""
-
-    def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
-        server = self.server
-        server.hits.append(self.path)  # type: ignore[attr-defined]
-        mode = server.mode  # type: ignore[attr-defined]
-        if mode == "slow":
-            time.sleep(2.0)
-        if mode == "error":
-            self.send_response(500)
-            self.end_headers()
-            return
-        parts = self.path.strip("/").removesuffix(".png").split("/")
-        if mode == "html":
-            body, ctype = b"<html>rate limited</html>", "text/html"
-        elif parts[0] == "9":
-            self.send_response(404)
-            self.end_headers()
-            return
-        else:
-            body, ctype = tile_png(*(int(p) for p in parts)), "image/png"
-        self.send_response(200)
-        self.send_header("Content-Type", ctype)
-        self.send_header("Content-Length", str(len(body)))
-        self.end_headers()
-        try:
-            self.wfile.write(body)
-        except (BrokenPipeError, ConnectionResetError):
-            pass
-
-    def log_message(self, *_args: object) -> None:
-        pass
-
-
-@pytest.fixture
-def upstream() -> Iterator[socketserver.TCPServer]:
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _UpstreamHandler)
-    server.hits = []  # type: ignore[attr-defined]
-    server.mode = "ok"  # type: ignore[attr-defined]
-    server.daemon_threads = True
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    yield server
-    server.shutdown()
-    server.server_close()
 
 
 # ------------------------------------------------------------------ registration
@@ -461,71 +409,6 @@ class TestServePMTiles:
     def test_tiles_need_a_login(self, app: FastAPI, admin: TestClient) -> None:
         register(admin, name="toner", kind="topo", path="tiles/toner.pmtiles")
         assert TestClient(app).get("/api/v1/tiles/toner/0/0/0.png").status_code == 401
-
-
-class TestUpstreamProxy:
-    def _register(self, admin: TestClient, upstream: socketserver.TCPServer) -> None:
-        host, port = upstream.server_address[:2]
-        register(admin, name="up", kind="satellite", url=f"http://{host}:{port}/{{z}}/{{x}}/{{y}}.png", max_zoom=12)
-
-    def test_first_fetch_goes_upstream_then_the_disk_cache_answers(
-        self, admin: TestClient, upstream: socketserver.TCPServer, data_dir: Path,
-    ) -> None:
-        self._register(admin, upstream)
-        first = admin.get("/api/v1/tiles/up/3/2/5.png")
-        assert first.status_code == 200 and first.content == tile_png(3, 2, 5)
-        assert upstream.hits == ["/3/2/5.png"]
-        upstream.mode = "error"
-        second = admin.get("/api/v1/tiles/up/3/2/5.png")
-        assert second.status_code == 200 and second.content == first.content
-        assert upstream.hits == ["/3/2/5.png"]
-        cached = list((data_dir / "tile-cache").rglob("5.png"))
-        assert len(cached) == 1 and cached[0].read_bytes() == first.content
-
-    def test_upstream_failure_is_a_502_naming_the_server(self, admin: TestClient, upstream: socketserver.TCPServer) -> None:
-        self._register(admin, upstream)
-        upstream.mode = "error"
-        response = admin.get("/api/v1/tiles/up/1/0/0.png")
-        assert response.status_code == 502 and response.json()["error"] == "upstream_failed"
-        assert "HTTP 500" in response.json()["detail"] and "127.0.0.1" in response.json()["detail"]
-        upstream.mode = "html"
-        response = admin.get("/api/v1/tiles/up/1/0/1.png")
-        assert response.status_code == 502 and "text/html" in response.json()["detail"]
-
-    def test_a_slow_upstream_times_out(
-        self, admin: TestClient, upstream: socketserver.TCPServer, monkeypatch: pytest.MonkeyPatch,
-    ) -> None:
-        monkeypatch.setenv("POSEFIX_TILE_UPSTREAM_TIMEOUT_S", "0.3")
-        tile_settings.cache_clear()
-        self._register(admin, upstream)
-        upstream.mode = "slow"
-        started = time.perf_counter()
-        response = admin.get("/api/v1/tiles/up/2/1/1.png")
-        assert time.perf_counter() - started < 1.5
-        assert response.status_code == 502 and "did not answer in time" in response.json()["detail"]
-
-    def test_stale_cache_is_served_when_upstream_is_down(
-        self, admin: TestClient, upstream: socketserver.TCPServer, monkeypatch: pytest.MonkeyPatch,
-    ) -> None:
-        self._register(admin, upstream)
-        assert admin.get("/api/v1/tiles/up/2/2/2.png").status_code == 200
-        monkeypatch.setenv("POSEFIX_TILE_UPSTREAM_MAX_AGE_S", "0")
-        tile_settings.cache_clear()
-        upstream.mode = "error"
-        response = admin.get("/api/v1/tiles/up/2/2/2.png")
-        assert response.status_code == 200 and response.content == tile_png(2, 2, 2)
-        assert len(upstream.hits) == 2  # it did ask again, the copy was too old
-
-    def test_upstream_404_is_a_missing_tile_and_deleting_clears_the_cache(
-        self, admin: TestClient, upstream: socketserver.TCPServer, data_dir: Path,
-    ) -> None:
-        self._register(admin, upstream)
-        response = admin.get("/api/v1/tiles/up/9/0/0.png")
-        assert response.status_code == 404 and response.json()["error"] == "tile_not_found"
-        assert admin.get("/api/v1/tiles/up/1/1/1.png").status_code == 200
-        assert any((data_dir / "tile-cache").rglob("*.png"))
-        assert admin.delete("/api/v1/tile-sources/up").status_code == 204
-        assert not any((data_dir / "tile-cache").rglob("*.png"))
 
 
 # ------------------------------------------------------------------ style

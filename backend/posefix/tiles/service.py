@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import logging
 import shutil
 import time
 from dataclasses import dataclass
@@ -28,6 +29,8 @@ from posefix.tiles.stores import (
     open_tile_file,
 )
 
+log = logging.getLogger("posefix.tiles")
+
 __all__ = [
     "TileSettings", "BadGateway", "TileFileUnavailable", "TileBody", "create_source", "list_sources", "get_source",
     "delete_source", "read_tile", "to_public", "source_file_path", "resolve_data_path",
@@ -41,8 +44,13 @@ class TileSettings(BaseSettings):
 
     # Upstream tiles younger than this are served from the disk cache without asking upstream.
     upstream_max_age_s: float = 7 * 86400.0
-    # Longest wait for one upstream tile (connecting takes at most 3 s of it).
+    # Longest wait for one upstream tile, body included (connecting takes at most 3 s of it).
     upstream_timeout_s: float = 10.0
+    # Largest upstream tile accepted (bytes); a bigger body is dropped as it arrives.
+    upstream_max_bytes: int = 8 * 1024 * 1024
+    # Networks ("10.1.2.0/24", "127.0.0.1") and host names an upstream may resolve into even
+    # though they are not public addresses: a site's own tile server. Empty: public only.
+    upstream_allow: list[str] = []
     # Browsers may reuse a served tile this long before revalidating with its ETag.
     browser_max_age_s: int = 3600
     # Empty: <data_dir>/tile-cache.
@@ -255,7 +263,8 @@ def open_store(settings: Settings, source: TileSource) -> MBTilesStore | PMTiles
     if source.url:
         options = tile_settings()
         return UpstreamStore(source.url, source.format, _cache_dir(settings, options, source),
-                             options.upstream_max_age_s, options.upstream_timeout_s)
+                             options.upstream_max_age_s, options.upstream_timeout_s,
+                             allow=tuple(options.upstream_allow), max_bytes=options.upstream_max_bytes)
     try:
         return open_tile_file(source_file_path(settings, source))
     except TileFileError as exc:
@@ -282,7 +291,10 @@ def read_tile(settings: Settings, source: TileSource, z: int, x: int, y: int, ex
     try:
         data = store.get(z, x, y)
     except UpstreamError as exc:
-        raise BadGateway(f"tile source {source.name!r}: {exc}") from None
+        # The reason (refused address, status, time-out...) would help a client map the
+        # server's network, so it goes to the log only.
+        log.warning("upstream tile %s/%d/%d/%d failed: %s", source.name, z, x, y, exc)
+        raise BadGateway(f"tile source {source.name!r} could not deliver this tile") from None
     if data is None:
         return None
     etag = '"' + hashlib.blake2b(data, digest_size=16).hexdigest() + '"'

@@ -25,6 +25,7 @@ import httpx
 from pmtiles.tile import Compression, TileType, deserialize_directory, deserialize_header, find_tile, zxy_to_tileid
 
 from posefix.basemap.tiling import flip_y
+from posefix.tiles.outbound import UpstreamError, fetch
 
 __all__ = [
     "MEDIA_TYPES", "TileFileError", "UpstreamError", "TileFileInfo", "MBTilesStore",
@@ -46,10 +47,6 @@ MAX_UPSTREAM_TILE_BYTES = 8 * 1024 * 1024  # a tile bigger than this is no tile
 
 class TileFileError(ValueError):
     """A tile file that cannot be served; the message names the file."""
-
-
-class UpstreamError(RuntimeError):
-    """An upstream tile server that failed or answered nonsense."""
 
 
 @dataclass(frozen=True)
@@ -288,41 +285,26 @@ def upstream_url(template: str, z: int, x: int, y: int) -> str:
     )
 
 
-_CLIENT: httpx.Client | None = None
-_CLIENT_LOCK = threading.Lock()
-
-
-def shared_client() -> httpx.Client:
-    """One pooled HTTP client for all upstream fetches; every phase of a request is bounded."""
-    global _CLIENT
-    with _CLIENT_LOCK:
-        if _CLIENT is None:
-            _CLIENT = httpx.Client(
-                timeout=httpx.Timeout(connect=3.0, read=10.0, write=5.0, pool=5.0),
-                limits=httpx.Limits(max_connections=32, max_keepalive_connections=16),
-                headers={"User-Agent": "posefix-tile-proxy/0.1 (+https://github.com/posefix)"},
-                follow_redirects=True,
-            )
-        return _CLIENT
-
-
 class UpstreamStore:
     """Tiles fetched from an XYZ server and kept under ``cache_dir/z/x/y.ext``.
 
     A cached tile younger than ``max_age_s`` is served without asking upstream. When
     upstream fails, an older cached copy is served rather than an error (a stale map
     beats a blank one); with no copy the failure is raised as :class:`UpstreamError`.
+    Fetches go through :mod:`posefix.tiles.outbound` (no inward addresses, no redirects,
+    bounded time and size); ``allow`` lists the networks and hosts allowed all the same.
     """
 
     def __init__(self, template: str, fmt: str, cache_dir: Path, max_age_s: float,
-                 timeout_s: float = 10.0, client: httpx.Client | None = None):
+                 timeout_s: float = 10.0, allow: tuple[str, ...] = (), max_bytes: int = MAX_UPSTREAM_TILE_BYTES):
         self.template = template
-        self.timeout = httpx.Timeout(timeout_s, connect=min(3.0, timeout_s))
+        self.timeout_s = timeout_s
         self.format = fmt
-        self.encoding = None  # httpx undoes any transfer compression
+        self.encoding = None  # asked for identity: stored and served as sent
         self.cache_dir = Path(cache_dir)
         self.max_age_s = max_age_s
-        self._client = client
+        self.allow = allow
+        self.max_bytes = max_bytes
 
     def cache_path(self, z: int, x: int, y: int) -> Path:
         return self.cache_dir / str(z) / str(x) / f"{y}.{self.format}"
@@ -345,24 +327,15 @@ class UpstreamStore:
     def _fetch(self, z: int, x: int, y: int) -> bytes | None:
         url = upstream_url(self.template, z, x, y)
         host = httpx.URL(url).host
-        try:
-            response = (self._client or shared_client()).get(url, timeout=self.timeout)
-        except httpx.TimeoutException as exc:
-            raise UpstreamError(f"tile server {host} did not answer in time ({type(exc).__name__})") from exc
-        except httpx.HTTPError as exc:
-            raise UpstreamError(f"tile server {host} unreachable ({exc})") from exc
-        if response.status_code in (204, 404):
+        status, data, content_type = fetch(url, allow=self.allow, timeout_s=self.timeout_s, max_bytes=self.max_bytes)
+        if status in (204, 404):
             return None
-        if response.status_code != 200:
-            raise UpstreamError(f"tile server {host} answered HTTP {response.status_code} for z={z} x={x} y={y}")
-        data = response.content
-        if not data or len(data) > MAX_UPSTREAM_TILE_BYTES:
-            raise UpstreamError(f"tile server {host} sent a tile of {len(data)} bytes")
+        if status != 200:
+            raise UpstreamError(f"tile server {host} answered HTTP {status} for z={z} x={x} y={y}")
+        if not data:
+            raise UpstreamError(f"tile server {host} sent an empty tile for z={z} x={x} y={y}")
         if self.format in RASTER_FORMATS and sniff_format(data) != self.format:
-            raise UpstreamError(
-                f"tile server {host} sent {response.headers.get('content-type', 'unknown content')}, "
-                f"not a {self.format} image"
-            )
+            raise UpstreamError(f"tile server {host} sent {content_type or 'unknown content'}, not a {self.format} image")
         return data
 
 
