@@ -1,0 +1,7 @@
+/** The on-device CRF tracker: pure functions and classes over typed arrays (no DOM, no map). */
+export * from "./npz";
+export * from "./model";
+export * from "./sensors";
+export * from "./filters";
+export * from "./fingerprints";
+export * from "./tracker";

@@ -1,0 +1,110 @@
+"""Live parity cases for the browser tracker (frontend/src/tracker): the Python online filter's
+output on the repository's walks, written next to the model and fingerprint bytes it read.
+
+    python -m tests.vectors.tracker_parity OUT_DIR [--floor site1|site2 ...]
+
+writes ``OUT_DIR/cases.json``: a list of ``{name, floor, walk, model, fingerprints, start,
+t_ms, x, y, sigma_major_m, sigma_minor_m, ms_per_step}`` where ``walk``/``model``/
+``fingerprints`` are file paths (the TypeScript test reads the same bytes) and the arrays
+are ``posefix.mapmatch.track_walk``'s live (forward-filtered) positions, one per step plus
+the start. The vitest parity test runs this on every run, so a change to the Python filter
+shows up at once rather than in a frozen fixture.
+
+The models exercise every term the tracker has: f2 on, a heading bias, a step model off
+the defaults, and fingerprints with f4's σ set when the small survey cannot calibrate it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from posefix.mapmatch import build_model, load_model, read_walk, save_model, track_walk
+from posefix.mapmatch.fingerprints import build_fingerprints, load_fingerprints, save_fingerprints
+
+REPO = Path(__file__).resolve().parents[2]
+FLOORS = {"site1": REPO / "data" / "indoor-site1-F1", "site2": REPO / "data" / "indoor-site2-F2"}
+
+
+def floor_model(floor: Path):
+    """The floor's model with every tracker term switched on (values are arbitrary but physical)."""
+    try:
+        model = build_model(floor, cell_m=0.8)
+    except ValueError:
+        # A floor the competition reader cannot read yet (site2's GeoJSON has no 'floor'
+        # feature): its image, white = walkable, stands in — parity needs a graph, not accuracy.
+        from PIL import Image
+
+        from posefix.mapmatch.floorplan import raster_from_image
+        from posefix.mapmatch.graph import build_graph
+        from posefix.mapmatch.model import Model
+
+        info = json.loads((floor / "floor_info.json").read_text())["map_info"]
+        width_px = Image.open(floor / "floor_image.png").size[0]
+        raster = raster_from_image(floor / "floor_image.png", m_per_px=float(info["width"]) / width_px)
+        model = Model(graph=build_graph(raster, cell_m=0.8))
+    return model.with_(step_model=replace(model.step_model, height_m=1.75, heading_bias_rad=0.07),
+                       weights={"f1": 0.8, "f2": 0.4, "f3": 1.0, "f4": 0.5})
+
+
+def fingerprint_file(walks: list[Path], out: Path) -> Path:
+    fp = build_fingerprints([read_walk(w) for w in walks])
+    if fp.peak_sigma_m is None:
+        fp.peak_sigma_m = 10.0  # two survey walks cannot calibrate f4; parity needs it on
+    save_fingerprints(fp, out)
+    return out
+
+
+def run_case(name: str, floor: str, walk: Path, model_path: Path, fp_path: Path | None, start: str) -> dict:
+    model = load_model(model_path)
+    w = read_walk(walk)
+    xy = (float(w.waypoints[0, 1]), float(w.waypoints[0, 2])) if start == "first_waypoint" else None
+    fp = load_fingerprints(fp_path) if fp_path is not None else None
+    tic = time.process_time()
+    res = track_walk(model, w, start_xy_m=xy, fingerprints=fp, estimate="viterbi")
+    total = time.process_time() - tic
+    n = max(res.t_ms.size - 1, 1)
+    return {
+        "name": name, "floor": floor, "walk": str(walk), "model": str(model_path),
+        "fingerprints": None if fp_path is None else str(fp_path), "start": None if xy is None else list(xy),
+        "t_ms": res.t_ms.tolist(), "x": res.online_xy_m[:, 0].tolist(), "y": res.online_xy_m[:, 1].tolist(),
+        "sigma_major_m": res.sigma_major_m.tolist(), "sigma_minor_m": res.sigma_minor_m.tolist(),
+        "ms_per_step": 1000.0 * res.time_per_step_s, "total_ms_per_step": 1000.0 * total / n,
+    }
+
+
+def cases(out: Path, floors: list[str]) -> list[dict]:
+    out.mkdir(parents=True, exist_ok=True)
+    found = []
+    for floor in floors:
+        d = FLOORS[floor]
+        walks = sorted((d / "walks").glob("*.txt"))
+        model_path = out / f"{floor}.npz"
+        save_model(floor_model(d), model_path)
+        for w in walks:
+            found.append(run_case(f"{floor} {w.stem} known start", floor, w, model_path, None, "first_waypoint"))
+        # WiFi: fingerprints of the other walks; one walk from a known start, one unknown.
+        fp_path = fingerprint_file(walks[1:], out / f"{floor}-fp.npz")
+        found.append(run_case(f"{floor} {walks[0].stem} known start + WiFi", floor, walks[0], model_path, fp_path, "first_waypoint"))
+        found.append(run_case(f"{floor} {walks[0].stem} unknown start + WiFi", floor, walks[0], model_path, fp_path, "unknown"))
+    return found
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--floor", action="append", choices=sorted(FLOORS), help="default: every floor")
+    args = ap.parse_args(argv)
+    found = cases(args.out, args.floor or sorted(FLOORS))
+    (args.out / "cases.json").write_text(json.dumps(found))
+    print(f"{len(found)} cases in {args.out / 'cases.json'}")
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()
