@@ -52,7 +52,7 @@ def _pg_exec(sql: str) -> None:
 def prepare(url: str, data_dir: Path, n_runs: int, n_operators: int) -> tuple[list[str], dict[int, dict]]:
     """Migrate, create accounts and tokens, import runs, create the task (in-process)."""
     os.environ.update({"POSEFIX_DATABASE_URL": url, "POSEFIX_DATA_DIR": str(data_dir), "POSEFIX_ENVIRONMENT": "test"})
-    from posefix.commands.server import upgrade_database
+    from posefix.db import upgrade_database
     from posefix.config import Settings
     from posefix.core.simulate import simulate
     from posefix.db import Database

@@ -98,7 +98,7 @@ def free_port() -> int:
 def prepare_database(env: dict[str, str], n_operators: int) -> None:
     """Migrate and create the accounts in-process (same code as `posefix users create`)."""
     os.environ.update(env)
-    from posefix.commands.server import upgrade_database
+    from posefix.db import upgrade_database
     from posefix.config import Settings
     from posefix.db import Database
     from posefix.users.models import Role

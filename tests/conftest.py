@@ -25,7 +25,7 @@ PG_URL = os.environ.get("POSEFIX_TEST_PG_URL", "postgresql+psycopg://postgres@12
 
 
 def migrate(url: str, revision: str = "heads") -> None:
-    from posefix.commands.server import upgrade_database
+    from posefix.db import upgrade_database
 
     upgrade_database(url, revision)
 

@@ -79,9 +79,9 @@ def test_secrets_are_required(tmp_path: Path) -> None:
 
 
 def test_every_service_command_parses_with_the_cli(config: dict) -> None:
-    from posefix.cli import _register, app
+    from posefix.cli import build_app
 
-    _register()
+    app = build_app()
     runner = CliRunner()
     for name in ("migrate", "api", "worker"):
         command = config["services"][name]["command"]
@@ -115,7 +115,7 @@ def test_dockerfile_builds_the_front_end_and_the_app() -> None:
                  "data", "README.md"):
         assert (REPO / path).exists(), path
     # The package's migrations lookup is relative to the source tree: /app/backend -> /app/migrations.
-    from posefix.commands.server import MIGRATIONS_DIR
+    from posefix.db import MIGRATIONS_DIR
 
     assert MIGRATIONS_DIR == REPO / "migrations"
 

@@ -19,7 +19,12 @@ from sqlalchemy import DateTime, Engine, MetaData, create_engine, event
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
 from sqlalchemy.types import TypeDecorator
 
-__all__ = ["Base", "Database", "UTCDateTime", "utcnow", "on_commit", "on_rollback"]
+__all__ = [
+    "Base", "Database", "UTCDateTime", "utcnow", "on_commit", "on_rollback", "MIGRATIONS_DIR", "alembic_config",
+    "upgrade_database",
+]
+
+MIGRATIONS_DIR = Path(__file__).resolve().parents[2] / "migrations"
 
 NAMING = {
     "ix": "ix_%(column_0_label)s",
@@ -145,3 +150,22 @@ class Database:
 
     def dispose(self) -> None:
         self.engine.dispose()
+
+
+def alembic_config(database_url: str | None = None):  # type: ignore[no-untyped-def]
+    """Alembic config pointing at the repository's migrations, usable from any directory."""
+    from alembic.config import Config
+
+    from posefix.config import Settings
+
+    cfg = Config(str(MIGRATIONS_DIR / "alembic.ini"))
+    cfg.set_main_option("script_location", str(MIGRATIONS_DIR))
+    cfg.set_main_option("sqlalchemy.url", (database_url or Settings().resolved_database_url).replace("%", "%%"))
+    return cfg
+
+
+def upgrade_database(database_url: str | None = None, revision: str = "heads") -> None:
+    """Migrate the database (default: the configured one) up to ``revision``."""
+    from alembic import command
+
+    command.upgrade(alembic_config(database_url), revision)

@@ -31,7 +31,7 @@ from tqdm import tqdm
 from posefix.basemap import build_basemap
 from posefix.config import Settings
 from posefix.core.run import PoseRun
-from posefix.db import Database
+from posefix.db import Database, upgrade_database
 
 __all__ = [
     "DEMO_ACCOUNTS", "DemoAccount", "DemoError", "DemoSummary", "demo_data_dir", "render_camera_frame",
@@ -299,8 +299,6 @@ def set_up_demo(
             f"the demo creates accounts with published passwords, so it runs only in development "
             f"(POSEFIX_ENVIRONMENT is {settings.environment!r})"
         )
-    from posefix.commands.server import upgrade_database
-
     source_data = demo_data_dir()
     Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
     say(f"database: {settings.resolved_database_url}")

@@ -7,7 +7,7 @@ from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from sqlalchemy import inspect
 
-from posefix.commands.server import alembic_config
+from posefix.db import alembic_config
 from posefix.db import Base, Database
 
 MINE = {"users", "auth_sessions", "api_tokens", "login_failures", "runs", "keyframes", "revisions", "run_images",

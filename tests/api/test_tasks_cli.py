@@ -10,9 +10,9 @@ from tests.api.tasks_support import Env, env, task_body  # noqa: F401
 
 
 def test_cli_lists_maintains_and_reports(env: Env, monkeypatch) -> None:
-    from posefix.cli import _register, app
+    from posefix.cli import build_app
 
-    _register()
+    app = build_app()
     run_id = env.import_run("drive-a", seed=41)
     env.add_user("op1", "operator")
     task = env.client("admin").post("/api/v1/tasks", json=task_body([run_id], lease_s=60)).json()

@@ -138,9 +138,9 @@ class TestBasemapCommand:
     def test_posefix_basemap_build(self, tmp_path: Path) -> None:
         from typer.testing import CliRunner
 
-        from posefix.cli import _register, app
+        from posefix.cli import build_app
 
-        _register()
+        app = build_app()
         runner = CliRunner()
         out = tmp_path / "city.pmtiles"
         result = runner.invoke(app, ["basemap", "build", str(HELSINKI_OSM), str(out), "--max-zoom", "14"])

@@ -182,9 +182,9 @@ def test_usage_errors_are_one_line(simulated, tmp_path, args, fragments):
 def in_process(*args):
     from typer.testing import CliRunner
 
-    from posefix.cli import _register, app
+    from posefix.cli import build_app
 
-    _register()
+    app = build_app()
     res = CliRunner().invoke(app, [str(a) for a in args])
     return subprocess.CompletedProcess(args, res.exit_code, res.stdout, res.stderr)
 

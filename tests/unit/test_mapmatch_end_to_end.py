@@ -47,9 +47,9 @@ def test_track_real_walk_beats_dead_reckoning(model):
 
 
 def test_cli_build_track_evaluate(tmp_path):
-    from posefix.cli import _register, app
+    from posefix.cli import build_app
 
-    _register()
+    app = build_app()
     r = CliRunner()
     out = r.invoke(app, ["mapmatch", "build", "--floor", str(FLOOR), "--output", str(tmp_path / "m.npz")])
     assert out.exit_code == 0, out.output
@@ -73,9 +73,9 @@ def test_cli_build_track_evaluate(tmp_path):
 
 
 def test_cli_train_learns_the_step_scale_unless_told_not_to(model, tmp_path):
-    from posefix.cli import _register, app
+    from posefix.cli import build_app
 
-    _register()
+    app = build_app()
     save_model(model, tmp_path / "m.npz")
     r = CliRunner()
     base = ["mapmatch", "train", "--model", str(tmp_path / "m.npz"), "--walks", str(WALK), "--no-weights"]
@@ -92,9 +92,9 @@ def test_cli_train_learns_the_step_scale_unless_told_not_to(model, tmp_path):
 
 
 def test_cli_track_with_fingerprints_takes_the_wifi_correlation_time(model, tmp_path):
-    from posefix.cli import _register, app
+    from posefix.cli import build_app
 
-    _register()
+    app = build_app()
     r = CliRunner()
     save_model(model, tmp_path / "m.npz")
     others = [str(p) for p in sorted((FLOOR / "walks").glob("*.txt")) if p != WALK][:12]

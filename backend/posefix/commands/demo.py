@@ -7,8 +7,9 @@ from typing import Annotated
 
 import typer
 
-from posefix.cli import app
-from posefix.commands.engine import single_threaded_blas
+from posefix.commands.common import single_threaded_blas
+
+app = typer.Typer()
 
 basemap_app = typer.Typer(help="Offline basemap tiles from OpenStreetMap extracts.", no_args_is_help=True)
 app.add_typer(basemap_app, name="basemap")

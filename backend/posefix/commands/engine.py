@@ -1,6 +1,6 @@
 """Commands of the 'engine' area: correct, evaluate, simulate, convert.
 
-Registered on ``posefix.cli.app``. Heavy modules (numpy, pyarrow, scipy, the engine) are
+On this module's ``app``, which ``posefix.cli`` assembles. Heavy modules (numpy, pyarrow, scipy, the engine) are
 imported inside the commands so ``posefix --help`` and every other command stay quick.
 Bad input prints one line ``error: ...`` on stderr and exits with status 1; nothing is
 written (outputs go to temporary files renamed at the end). Set ``POSEFIX_DEBUG=1`` to see
@@ -20,7 +20,9 @@ from typing import Iterator, Optional
 
 import typer
 
-from posefix.cli import app
+from posefix.commands.common import single_threaded_blas
+
+app = typer.Typer()
 
 EXIT_BAD_INPUT = 1
 
@@ -105,17 +107,6 @@ class _Steps:
 
     def close(self) -> None:
         self.bar.close()
-
-
-def single_threaded_blas() -> None:
-    """One BLAS thread unless the user chose otherwise (before numpy is first imported).
-
-    The engine's linear algebra is 6x6 blocks, thin (n,3) products and a banded Cholesky:
-    BLAS threads only spin against each other (and against the CSV parser) on them.
-    """
-    if "numpy" not in sys.modules:
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-        os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def _preload(module: str):

@@ -16,7 +16,7 @@ from typing import Iterator, List, Optional
 
 import typer
 
-from posefix.cli import app
+app = typer.Typer()
 
 mm = typer.Typer(
     name="mapmatch",

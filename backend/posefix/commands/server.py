@@ -4,43 +4,25 @@ from __future__ import annotations
 
 import signal
 import sys
-from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from posefix.cli import app
-from posefix.commands.engine import single_threaded_blas
+from posefix.commands.common import single_threaded_blas
+
+app = typer.Typer()
 
 users_app = typer.Typer(help="Manage user accounts.", no_args_is_help=True)
 db_app = typer.Typer(help="Database schema (Alembic migrations).", no_args_is_help=True)
 app.add_typer(users_app, name="users")
 app.add_typer(db_app, name="db")
 
-MIGRATIONS_DIR = Path(__file__).resolve().parents[3] / "migrations"
-
-
-def alembic_config(database_url: str | None = None):  # type: ignore[no-untyped-def]
-    """Alembic config pointing at the repository's migrations, usable from any directory."""
-    from alembic.config import Config
-
-    from posefix.config import Settings
-
-    cfg = Config(str(MIGRATIONS_DIR / "alembic.ini"))
-    cfg.set_main_option("script_location", str(MIGRATIONS_DIR))
-    cfg.set_main_option("sqlalchemy.url", (database_url or Settings().resolved_database_url).replace("%", "%%"))
-    return cfg
-
-
-def upgrade_database(database_url: str | None = None, revision: str = "heads") -> None:
-    from alembic import command
-
-    command.upgrade(alembic_config(database_url), revision)
-
 
 @db_app.command("upgrade")
 def db_upgrade(revision: Annotated[str, typer.Argument(help="target revision")] = "heads") -> None:
     """Migrate the database (POSEFIX_DATABASE_URL) up to REVISION (default: latest)."""
+    from posefix.db import upgrade_database
+
     upgrade_database(None, revision)
     typer.echo(f"database upgraded to {revision}")
 
@@ -49,6 +31,8 @@ def db_upgrade(revision: Annotated[str, typer.Argument(help="target revision")] 
 def db_downgrade(revision: Annotated[str, typer.Argument(help="target revision, e.g. -1 or base")]) -> None:
     """Migrate the database down to REVISION."""
     from alembic import command
+
+    from posefix.db import alembic_config
 
     command.downgrade(alembic_config(), revision)
     typer.echo(f"database downgraded to {revision}")
@@ -108,6 +92,7 @@ def serve(
     import uvicorn
 
     from posefix.config import Settings
+    from posefix.db import upgrade_database
     from posefix.main import create_app
 
     settings = Settings()

@@ -1,4 +1,4 @@
-"""Commands of the 'tasks' area, registered on posefix.cli.app:
+"""Commands of the 'tasks' area, on this module's ``app``, which posefix.cli assembles:
 
     posefix tasks maintain     expire leases, auto-approve, expire tasks once (cron-friendly;
                                the worker also does it every few seconds while work is live)
@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from posefix.cli import app
+app = typer.Typer()
 
 tasks_app = typer.Typer(help="Crowdsourced correction tasks.", no_args_is_help=True)
 app.add_typer(tasks_app, name="tasks")
