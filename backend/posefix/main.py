@@ -26,6 +26,8 @@ from sqlalchemy import text
 from posefix.config import Settings
 from posefix.db import Database
 from posefix.errors import install_error_handlers
+from posefix.runs.access import register_operator_runs
+from posefix.tasks.access import runs_of_assignments
 
 log = logging.getLogger("posefix.http")
 
@@ -152,7 +154,10 @@ def ops_router() -> APIRouter:
 def api_router() -> APIRouter:
     from posefix.edits.endpoints import router as edits_router
     from posefix.jobs.endpoints import router as jobs_router
+    from posefix.maps.endpoints import router as maps_router
     from posefix.runs.endpoints import router as runs_router
+    from posefix.tasks.endpoints import router as tasks_router
+    from posefix.tiles.endpoints import router as tiles_router
     from posefix.users.endpoints import router as users_router
 
     router = APIRouter(prefix=API_PREFIX)
@@ -160,28 +165,16 @@ def api_router() -> APIRouter:
     router.include_router(runs_router)
     router.include_router(edits_router)
     router.include_router(jobs_router)
-    _include_optional(router, "posefix.tiles.endpoints")
-    _include_optional(router, "posefix.tasks.endpoints")
-    _include_optional(router, "posefix.maps.endpoints")
+    router.include_router(tiles_router)
+    router.include_router(tasks_router)
+    router.include_router(maps_router)
     return router
-
-
-def _include_optional(router: APIRouter, module: str) -> None:
-    """Routers of parts owned by other engineers, included once they exist."""
-    import importlib
-
-    try:
-        mod = importlib.import_module(module)
-    except ModuleNotFoundError as exc:
-        if exc.name and module.startswith(exc.name):
-            return
-        raise
-    router.include_router(mod.router)
 
 
 def create_app(settings: Settings | None = None, *, embedded_worker: bool = False) -> FastAPI:
     settings = settings or Settings()
     configure_logging(settings)
+    register_operator_runs(runs_of_assignments)
     db = Database(
         settings.resolved_database_url,
         pool_size=settings.db_pool_size,

@@ -62,23 +62,8 @@ def register_cleanup(fn: Cleanup) -> Cleanup:
 
 
 def cleanups() -> list[Cleanup]:
-    load_handlers()
     return list(_CLEANUPS)
 
 
 def handler_for(kind: str) -> Handler | None:
-    load_handlers()
     return _HANDLERS.get(kind)
-
-
-def load_handlers() -> None:
-    """Import the modules that register handlers (domains owned by several people)."""
-    import importlib
-
-    for module in ("posefix.edits.tasks", "posefix.jobs.builtin", "posefix.tasks.jobs", "posefix.maps.jobs"):
-        try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name and module.startswith(exc.name):
-                continue
-            raise

@@ -3,9 +3,9 @@ jobs, events) applies the same rule.
 
 - admin and reviewer: every run;
 - client (REST requester): the runs they uploaded;
-- operator: the runs granted by the registered providers — the tasks domain registers one
-  that yields the runs of tasks the operator holds or held (``register_operator_runs``);
-  plus their own uploads. ``POSEFIX_OPERATORS_SEE_ALL_RUNS`` opens every run to operators
+- operator: the runs granted by the registered providers — the app factory registers the
+  tasks domain's, which yields the runs of tasks the operator holds or held
+  (``register_operator_runs``); plus their own uploads. ``POSEFIX_OPERATORS_SEE_ALL_RUNS`` opens every run to operators
   (the demo before tasks exist).
 
 Providers return a SELECT of run ids, so visibility stays one SQL query, never a Python loop.
@@ -35,16 +35,6 @@ def register_operator_runs(provider: RunIdsProvider) -> RunIdsProvider:
     return provider
 
 
-def _load_providers() -> None:
-    import importlib
-
-    try:
-        importlib.import_module("posefix.tasks.access")
-    except ModuleNotFoundError as exc:
-        if not (exc.name and "posefix.tasks.access".startswith(exc.name)):
-            raise
-
-
 def visible_clause(principal: Principal, settings: Settings) -> ColumnElement[bool]:
     """A WHERE clause on ``Run`` selecting the runs this principal may see."""
     if principal.role in (Role.admin, Role.reviewer):
@@ -54,7 +44,6 @@ def visible_clause(principal: Principal, settings: Settings) -> ColumnElement[bo
     if principal.role == Role.operator:
         if settings.operators_see_all_runs:
             return true()
-        _load_providers()
         clauses = [Run.owner_id == principal.user_id]
         clauses += [Run.id.in_(p(principal.user_id)) for p in _operator_providers]
         return or_(*clauses)

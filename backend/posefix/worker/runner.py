@@ -18,7 +18,13 @@ import uuid
 from posefix.config import Settings
 from posefix.db import Database
 from posefix.jobs import repository as jobs
-from posefix.jobs.registry import JobContext, LeaseLost, PermanentJobError, cleanups, handler_for, load_handlers
+from posefix.jobs.registry import JobContext, LeaseLost, PermanentJobError, cleanups, handler_for
+
+# The job kinds a worker runs: importing each module registers its handlers.
+from posefix.edits import tasks as _edit_jobs  # noqa: F401
+from posefix.jobs import builtin as _builtin_jobs  # noqa: F401
+from posefix.maps import jobs as _map_jobs  # noqa: F401
+from posefix.tasks import jobs as _task_jobs  # noqa: F401
 
 log = logging.getLogger("posefix.worker")
 
@@ -38,7 +44,6 @@ class Worker:
         self._thread: threading.Thread | None = None
         self.processed = 0
         self._last_bury = float("-inf")
-        load_handlers()
 
     # -- lifecycle ---------------------------------------------------------------------
     def stop(self) -> None:
