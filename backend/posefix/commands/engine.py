@@ -26,7 +26,7 @@ app = typer.Typer()
 
 EXIT_BAD_INPUT = 1
 
-FORMAT_HELP = "csv, gpx, geojson, tum, kitti or comma2k19"
+FORMAT_HELP = "csv, parquet, arrow, gpx, geojson, tum, kitti or comma2k19"
 ORIGIN_HELP = (
     "Origin of a TUM file's local ENU frame as 'lat,lon,alt' (degrees, degrees, metres above "
     "the WGS84 ellipsoid). Needed to read TUM; for writing TUM the default is the first sample."
@@ -91,22 +91,30 @@ def _parse_origin(text: Optional[str]):
 
 
 class _Steps:
-    """A tqdm bar over named steps of a command (shown on a terminal only)."""
+    """A tqdm bar over named steps of a command (shown on a terminal only).
+
+    tqdm (and the multiprocessing it loads) is imported only when the bar is shown.
+    """
 
     def __init__(self, names: list[str], quiet: bool):
-        from tqdm import tqdm
+        self.bar = None
+        if not quiet and sys.stderr.isatty():
+            from tqdm import tqdm
 
-        self.bar = tqdm(total=len(names), disable=quiet or not sys.stderr.isatty(), unit="step",
-                        leave=False, file=sys.stderr, bar_format="{desc}: {n_fmt}/{total_fmt} {bar} {elapsed}")
+            self.bar = tqdm(total=len(names), unit="step", leave=False, file=sys.stderr,
+                            bar_format="{desc}: {n_fmt}/{total_fmt} {bar} {elapsed}")
 
     def __call__(self, name: str) -> None:
-        self.bar.set_description_str(name)
+        if self.bar is not None:
+            self.bar.set_description_str(name)
 
     def done(self) -> None:
-        self.bar.update(1)
+        if self.bar is not None:
+            self.bar.update(1)
 
     def close(self) -> None:
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _preload(module: str):
@@ -148,11 +156,11 @@ def _check_output_path(path: Path, inputs: list[Path]) -> None:
 def correct_command(
     run_path: Path = typer.Argument(..., metavar="RUN", help=f"Pose run to correct: a file or folder ({FORMAT_HELP}); format from the extension/layout unless --input-format."),
     edits_path: Optional[Path] = typer.Option(None, "--edits", "-e", metavar="EDITS.json", help='Operator edits: {"edits": [{"t": s, "lat": deg, "lon": deg, "alt": m (optional)}], "deleted": [t, ...]}; each t names a sample to the millisecond. Omit for no edits.'),
-    output: Path = typer.Option(..., "--output", "-o", metavar="OUT", help="Corrected run: every input sample in input order, other columns kept. Format from the extension (.csv, .gpx, .geojson, .tum) unless --format."),
+    output: Path = typer.Option(..., "--output", "-o", metavar="OUT", help="Corrected run: every input sample in input order, other columns kept. Format from the extension (.csv, .parquet, .arrow, .gpx, .geojson, .tum) unless --format."),
     config: Optional[Path] = typer.Option(None, "--config", "-c", metavar="FILE", help="TOML file overriding engine settings (strengths in metres/radians, loss, drift, solver); defaults documented in posefix/core/default_config.toml."),
     keyframes_every_s: Optional[float] = typer.Option(None, "--keyframes-every-s", metavar="S", help="One keyframe every S seconds (default from config: 1 s). Edited samples are always keyframes."),
     keyframes_every_m: Optional[float] = typer.Option(None, "--keyframes-every-m", metavar="M", help="One keyframe every M metres travelled (instead of every S seconds)."),
-    fmt: Optional[str] = typer.Option(None, "--format", "-f", help="Output format: csv, gpx, geojson or tum (default: from OUT's extension)."),
+    fmt: Optional[str] = typer.Option(None, "--format", "-f", help="Output format: csv, parquet, arrow, gpx, geojson or tum (default: from OUT's extension)."),
     input_format: Optional[str] = typer.Option(None, "--input-format", help=f"Input format ({FORMAT_HELP}); default from RUN's extension or folder layout."),
     origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
@@ -335,10 +343,10 @@ def simulate_command(
 @app.command("convert")
 def convert_command(
     input_path: Path = typer.Argument(..., metavar="IN", help=f"Run to read: a file or folder ({FORMAT_HELP})."),
-    output_path: Path = typer.Argument(..., metavar="OUT", help="File to write (.csv, .gpx, .geojson, .tum)."),
+    output_path: Path = typer.Argument(..., metavar="OUT", help="File to write (.csv, .parquet, .arrow, .gpx, .geojson, .tum)."),
     origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
     input_format: Optional[str] = typer.Option(None, "--from", help=f"Input format ({FORMAT_HELP}); default from IN."),
-    output_format: Optional[str] = typer.Option(None, "--to", help="Output format (csv, gpx, geojson, tum); default from OUT's extension."),
+    output_format: Optional[str] = typer.Option(None, "--to", help="Output format (csv, parquet, arrow, gpx, geojson, tum); default from OUT's extension."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Convert a pose run between formats (orientation derived from the track when IN has none)."""

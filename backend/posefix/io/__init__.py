@@ -4,9 +4,10 @@
 >>> run = read_run("drive.csv")             # format from the extension, or fmt=...
 >>> write_run(run, "drive.gpx")
 
-Formats: ``csv`` (interchange), ``gpx``, ``geojson``, ``tum`` (needs ``origin``),
-``kitti`` (raw ``oxts`` folder), ``comma2k19`` (segment folder). Write: csv, gpx, geojson
-(and tum). Every reader raises ``RunFormatError(file, line, field, message)`` on bad input;
+Formats: ``csv`` (interchange), ``parquet`` and ``arrow`` (Arrow IPC / Feather v2: the
+interchange columns, units in the schema), ``gpx``, ``geojson``, ``tum`` (needs ``origin``),
+``kitti`` (raw ``oxts`` folder), ``comma2k19`` (segment folder). Write: csv, parquet, arrow,
+gpx, geojson (and tum). Every reader raises ``RunFormatError(file, line, field, message)`` on bad input;
 every writer writes a temporary file and renames it at the end.
 """
 
@@ -24,9 +25,12 @@ __all__ = [
     "RunFormatError", "EditsFormatError", "EditMatchError", "OrientationDerivedWarning",
 ]
 
-READ_FORMATS = ("csv", "gpx", "geojson", "tum", "kitti", "comma2k19")
-WRITE_FORMATS = ("csv", "gpx", "geojson", "tum")
-_EXTENSIONS = {".csv": "csv", ".gpx": "gpx", ".geojson": "geojson", ".json": "geojson", ".tum": "tum", ".txt": "tum"}
+READ_FORMATS = ("csv", "parquet", "arrow", "gpx", "geojson", "tum", "kitti", "comma2k19")
+WRITE_FORMATS = ("csv", "parquet", "arrow", "gpx", "geojson", "tum")
+_EXTENSIONS = {
+    ".csv": "csv", ".parquet": "parquet", ".arrow": "arrow", ".feather": "arrow", ".ipc": "arrow",
+    ".gpx": "gpx", ".geojson": "geojson", ".json": "geojson", ".tum": "tum", ".txt": "tum",
+}
 
 
 def detect_format(path: str | os.PathLike, *, for_writing: bool = False) -> str:
@@ -59,6 +63,12 @@ def read_run(path: str | os.PathLike, fmt: str | None = None, origin=None):
     if fmt == "csv":
         from posefix.io.csv import read_csv
         return read_csv(p)
+    if fmt == "parquet":
+        from posefix.io.columnar import read_parquet
+        return read_parquet(p)
+    if fmt == "arrow":
+        from posefix.io.columnar import read_arrow
+        return read_arrow(p)
     if fmt == "gpx":
         from posefix.io.gpx import read_gpx
         return read_gpx(p)
@@ -86,6 +96,12 @@ def write_run(run, path: str | os.PathLike, fmt: str | None = None, origin=None)
     if fmt == "csv":
         from posefix.io.csv import write_csv
         write_csv(run, p)
+    elif fmt == "parquet":
+        from posefix.io.columnar import write_parquet
+        write_parquet(run, p)
+    elif fmt == "arrow":
+        from posefix.io.columnar import write_arrow
+        write_arrow(run, p)
     elif fmt == "gpx":
         from posefix.io.gpx import write_gpx
         write_gpx(run, p)
