@@ -5,6 +5,9 @@
     tr = Tracker(model, start_xy_m=(81.3, 93.3))                   # online
     point = tr.step(step_xy_m, t_ms)                               # TrackPoint (vertex, Gaussian summary)
     result = track_walk(model, read_walk("walk.txt"), start_xy_m=None)   # TrackResult, offline
+
+The web layer (``posefix.maps``) reaches the engine through this module only: the names it
+re-exports and the few helpers below are the whole surface a server needs.
 """
 
 from __future__ import annotations
@@ -16,13 +19,22 @@ from typing import Callable
 
 import numpy as np
 
-from posefix.mapmatch.floorplan import GeoRef, load_ilc_floor
+from posefix.mapmatch.evaluate import evaluate_track
+from posefix.mapmatch.floorplan import FloorFormatError, GeoRef, load_ilc_floor, raster_from_polygons
 from posefix.mapmatch.graph import build_graph
-from posefix.mapmatch.model import Model
-from posefix.mapmatch.sensors import Walk, read_walk, steps_from_walk
-from posefix.mapmatch.tracker import TrackResult, track_walk
+from posefix.mapmatch.model import Model, load_model, save_model
+from posefix.mapmatch.sensors import (Steps, Walk, WalkFormatError, detect_steps, heading_from_rotation_vector,
+                                      read_walk, steps_from_walk, wrap_angle)
+from posefix.mapmatch.suggest import Suggestions, suggest_for_run
+from posefix.mapmatch.tracker import Tracker, TrackResult, track_walk
+from posefix.mapmatch.viterbi import GaussianSummary, gaussian_summary
 
-__all__ = ["build_model", "train_model", "track_walk_file", "write_track_csv", "read_track_csv"]
+__all__ = [
+    "FloorFormatError", "GaussianSummary", "GeoRef", "Model", "TrackResult", "Tracker", "Walk", "WalkFormatError",
+    "build_model", "build_polygon_model", "current_summary", "evaluate_track", "load_ilc_floor", "load_model",
+    "read_track_csv", "read_walk", "save_model", "settled_steps", "suggest_for_run", "Suggestions", "track_walk", "track_walk_file", "train_model",
+    "write_track_csv",
+]
 
 TRACK_COLUMNS = ["t", "x", "y", "lat", "lon", "sigma_major_m", "sigma_minor_m", "angle_deg"]
 
@@ -32,6 +44,35 @@ def build_model(floor_dir: str | Path, cell_m: float = 0.8, reach_m: float = 1.7
     """Model of a competition floor directory with default (untrained) parameters."""
     raster = load_ilc_floor(floor_dir, res_m=raster_m, shops_walkable=shops_walkable)
     return Model(graph=build_graph(raster, cell_m=cell_m, reach_m=reach_m, min_component_m2=min_component_m2))
+
+
+def build_polygon_model(width_m: float, height_m: float, walkable: list, blocked: list, cell_m: float = 0.8) -> Model:
+    """Model of a floor given as walkable and blocked polygons in the floor frame (metres)."""
+    raster = raster_from_polygons(width_m, height_m, walkable, blocked, res_m=min(0.1, cell_m / 8.0))
+    return Model(graph=build_graph(raster, cell_m=cell_m))
+
+
+def current_summary(tracker: Tracker) -> GaussianSummary:
+    """The Gaussian summary (mean, 1σ ellipse) of the tracker's present belief."""
+    return gaussian_summary(tracker.p_xy_m, tracker.column(), min_sigma_m=tracker.model.graph.cell_m / np.sqrt(12.0))
+
+
+def settled_steps(acc: np.ndarray, rotvec: np.ndarray, after_ms: float, until_ms: float,
+                  model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """Steps detected in raw samples (``acc``, ``rotvec``: (n, 4) rows ``t_ms, x, y, z``) that
+    fall in (``after_ms`` + the minimum step interval, ``until_ms``]: their (k,) times and
+    (k, 2) floor-frame vectors under the model's step model."""
+    t_steps, freq = detect_steps(acc)
+    # A peak can shift by a sample as more signal arrives: new steps must come at least
+    # the minimum step interval after the last one reported.
+    new = (t_steps > after_ms + 300) & (t_steps <= until_ms)
+    if not np.any(new):
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    t_new, f_new = t_steps[new], freq[new]
+    th = np.unwrap(heading_from_rotation_vector(rotvec[:, 1:4]))
+    heading = wrap_angle(np.interp(t_new, rotvec[:, 0], th))
+    vec = Steps(t_ms=t_new, freq_hz=f_new, heading_rad=np.asarray(heading, dtype=float)).vectors_m(model.step_model)
+    return t_new.astype(np.int64), vec
 
 
 def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step_em: bool = False,

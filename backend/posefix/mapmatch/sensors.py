@@ -289,6 +289,11 @@ def _wrap(a: np.ndarray | float) -> np.ndarray:
     return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Angles in radians wrapped to [-π, π)."""
+    return _wrap(a)
+
+
 def detect_steps(
     acc: np.ndarray,
     min_interval_s: float = 0.30,

@@ -26,6 +26,7 @@ from posefix.config import Settings
 from posefix.db import on_commit, on_rollback
 from posefix.errors import BadRequest, Conflict, NotFound, PayloadTooLarge, Unprocessable
 from posefix.jobs import repository as jobs
+from posefix.mapmatch import api as mapmatch
 from posefix.maps import repository as repo
 from posefix.maps.models import FloorPlan, FloorPlanSource, FloorPlanStatus
 from posefix.runs import uploads
@@ -95,8 +96,6 @@ def _extract_competition_zip(zpath: Path, name: str, dest: Path, settings: Setti
 
 def _check_competition(dest: Path, name: str) -> dict[str, Any]:
     """Parse the floor (walkable raster + geo-reference) to refuse bad content now, not in the job."""
-    from posefix.mapmatch.floorplan import FloorFormatError, load_ilc_floor
-
     uploads.check_image(dest / "floor_image.png", "floor_image.png")
     try:
         info = json.loads((dest / "floor_info.json").read_text())
@@ -108,8 +107,8 @@ def _check_competition(dest: Path, name: str) -> dict[str, Any]:
         raise Unprocessable(f"{name}: floor_info.json: field map_info: {w} x {h} m is outside 0..{MAX_FLOOR_SIDE_M:.0f} m",
                             code="invalid_floor", extra={"file": "floor_info.json", "field": "map_info"})
     try:
-        raster = load_ilc_floor(dest)
-    except FloorFormatError as exc:
+        raster = mapmatch.load_ilc_floor(dest)
+    except mapmatch.FloorFormatError as exc:
         raise _floor_error(name, exc) from None
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise Unprocessable(f"{name}: geojson_map.json: field features: unusable geometry ({exc})",
@@ -250,26 +249,19 @@ def delete_floorplan(session: Session, settings: Settings, fp: FloorPlan) -> Non
 
 def build_model_files(folder: Path, source: str, cell_m: float, progress: Any) -> dict[str, Any]:
     """Build and write ``model.npz`` in ``folder``; returns vertices, size and build time."""
-    from posefix.mapmatch import build_model, save_model
-    from posefix.mapmatch.graph import build_graph
-    from posefix.mapmatch.model import Model
-
     t0 = time.perf_counter()
     progress(0.1, "reading the floor plan")
     if source == FloorPlanSource.competition:
-        model = build_model(folder, cell_m=cell_m)
+        model = mapmatch.build_model(folder, cell_m=cell_m)
     else:
-        from posefix.mapmatch.floorplan import raster_from_polygons
-
         w, h, walk, block = parse_walkable_geojson(folder / GEOJSON_FILE, GEOJSON_FILE)
-        raster = raster_from_polygons(w, h, walk, block, res_m=min(0.1, cell_m / 8.0))
         progress(0.4, "building the graph")
-        model = Model(graph=build_graph(raster, cell_m=cell_m))
+        model = mapmatch.build_polygon_model(w, h, walk, block, cell_m=cell_m)
     if model.graph.n_vertices == 0:
         raise ValueError("no walkable cell survived (floor smaller than the minimum reachable area?)")
     progress(0.8, "writing the model")
     tmp = folder / f".{MODEL_FILE}.{uuid.uuid4().hex}.tmp"
-    size = save_model(model, tmp)
+    size = mapmatch.save_model(model, tmp)
     tmp.replace(folder / MODEL_FILE)
     return {"n_vertices": int(model.graph.n_vertices), "model_bytes": int(size), "build_s": round(time.perf_counter() - t0, 3)}
 
@@ -279,12 +271,10 @@ class ModelCache:
 
     def __init__(self, size: int = 4):
         self.size = size
-        self._items: OrderedDict[tuple[int, str], Any] = OrderedDict()
+        self._items: OrderedDict[tuple[int, str], mapmatch.Model] = OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, settings: Settings, fp: FloorPlan) -> Any:
-        from posefix.mapmatch import load_model
-
+    def get(self, settings: Settings, fp: FloorPlan) -> mapmatch.Model:
         if fp.status != FloorPlanStatus.ready:
             raise Conflict(f"floor plan {fp.id} has no model yet (status {fp.status})", code="model_not_ready",
                            extra={"status": fp.status, "job_id": fp.job_id})
@@ -293,7 +283,7 @@ class ModelCache:
             if key in self._items:
                 self._items.move_to_end(key)
                 return self._items[key]
-        model = load_model(floor_dir(settings, fp) / MODEL_FILE)
+        model = mapmatch.load_model(floor_dir(settings, fp) / MODEL_FILE)
         with self._lock:
             self._items[key] = model
             while len(self._items) > self.size:
@@ -348,10 +338,6 @@ def parse_start(value: str | None) -> tuple[str, tuple[float, float] | None]:
 
 def track_walk_upload(settings: Settings, fp: FloorPlan, fh: BinaryIO, filename: str | None, start: str | None) -> dict[str, Any]:
     """Track an uploaded walk file: matched and dead-reckoning tracks, ellipses, waypoint errors."""
-    from posefix.mapmatch import read_walk, track_walk
-    from posefix.mapmatch.evaluate import evaluate_track
-    from posefix.mapmatch.sensors import WalkFormatError
-
     fname = uploads.safe_name(filename, "file")
     mode, xy = parse_start(start)
     model = MODELS.get(settings, fp)
@@ -360,8 +346,8 @@ def track_walk_upload(settings: Settings, fp: FloorPlan, fh: BinaryIO, filename:
         path = stage / "walk.txt"
         uploads.copy_limited(fh, path, MAX_WALK_BYTES, fname)
         try:
-            walk = read_walk(path)
-        except WalkFormatError as exc:
+            walk = mapmatch.read_walk(path)
+        except mapmatch.WalkFormatError as exc:
             msg = str(exc).split(f"field {exc.field}: ", 1)[-1]
             raise Unprocessable(f"{fname}:{exc.line}: field {exc.field}: {msg}", code="invalid_walk",
                                 extra={"file": fname, "line": exc.line, "field": exc.field}) from None
@@ -373,7 +359,7 @@ def track_walk_upload(settings: Settings, fp: FloorPlan, fh: BinaryIO, filename:
                                 code="invalid_walk", extra={"file": fname, "field": "TYPE_WAYPOINT"})
         xy = (float(walk.waypoints[0, 1]), float(walk.waypoints[0, 2]))
     t0 = time.perf_counter()
-    res = track_walk(model, walk, start_xy_m=xy)
+    res = mapmatch.track_walk(model, walk, start_xy_m=xy)
     track_s = time.perf_counter() - t0
     return walk_geojson(fp, model, walk, res, start_mode=mode, track_s=track_s, filename=fname)
 
@@ -382,9 +368,8 @@ def _r(v: float, nd: int = 3) -> float:
     return round(float(v), nd)
 
 
-def walk_geojson(fp: FloorPlan, model: Any, walk: Any, res: Any, *, start_mode: str, track_s: float, filename: str) -> dict[str, Any]:
-    from posefix.mapmatch.evaluate import evaluate_track
-
+def walk_geojson(fp: FloorPlan, model: mapmatch.Model, walk: mapmatch.Walk, res: mapmatch.TrackResult, *,
+                 start_mode: str, track_s: float, filename: str) -> dict[str, Any]:
     geo = model.graph.georef
     ll = geo.to_lonlat(res.p_xy_m) if geo is not None else None
     steps = []
@@ -408,8 +393,8 @@ def walk_geojson(fp: FloorPlan, model: Any, walk: Any, res: Any, *, start_mode: 
                               "skip_first": start_mode == "first_waypoint", "waypoints": []}
     wp = walk.waypoints
     if wp.shape[0]:
-        ev = evaluate_track(wp, res.t_ms, res.p_xy_m)
-        ev_dr = evaluate_track(wp, res.t_ms, res.dr_xy_m)
+        ev = mapmatch.evaluate_track(wp, res.t_ms, res.p_xy_m)
+        ev_dr = mapmatch.evaluate_track(wp, res.t_ms, res.dr_xy_m)
         scored = ev.err_wp_m[1:] if errors["skip_first"] else ev.err_wp_m
         for j in range(wp.shape[0]):
             given = errors["skip_first"] and j == 0

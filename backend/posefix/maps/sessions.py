@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from posefix.errors import Conflict, NotFound, TooManyRequests
+from posefix.errors import Conflict, NotFound, TooManyRequests, Unprocessable
+from posefix.mapmatch import api as mapmatch
 
 TTL_S = 600.0
 MAX_SESSIONS = 16
@@ -39,8 +40,8 @@ class TrackingSession:
     id: str
     owner_id: int
     floorplan_id: int
-    model: Any
-    tracker: Any
+    model: mapmatch.Model
+    tracker: mapmatch.Tracker
     last_used: float
     lock: threading.Lock = field(default_factory=threading.Lock)
     acc: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
@@ -52,7 +53,7 @@ class TrackingSession:
         return len(self.tracker.t_ms) - 1
 
 
-def position_json(model: Any, t_ms: int, summary: Any) -> dict[str, Any]:
+def position_json(model: mapmatch.Model, t_ms: int, summary: mapmatch.GaussianSummary) -> dict[str, Any]:
     x, y = (float(v) for v in summary.mean_xy_m)
     out = {"t_ms": int(t_ms), "x_m": round(x, 3), "y_m": round(y, 3),
            "sigma_major_m": round(float(summary.sigma_major_m), 3), "sigma_minor_m": round(float(summary.sigma_minor_m), 3),
@@ -73,10 +74,8 @@ class SessionStore:
         for sid in [k for k, s in self._items.items() if now - s.last_used > TTL_S]:
             del self._items[sid]
 
-    def create(self, owner_id: int, floorplan_id: int, model: Any, start_xy_m: tuple[float, float] | None) -> tuple[TrackingSession, dict[str, Any]]:
-        from posefix.mapmatch import Tracker
-        from posefix.mapmatch.viterbi import gaussian_summary
-
+    def create(self, owner_id: int, floorplan_id: int, model: mapmatch.Model,
+               start_xy_m: tuple[float, float] | None) -> tuple[TrackingSession, dict[str, Any]]:
         now = time.monotonic()
         with self._lock:
             self._purge(now)
@@ -87,10 +86,10 @@ class SessionStore:
                 )
         t0 = 0
         try:
-            tracker = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0)
+            tracker = mapmatch.Tracker(model, start_xy_m=start_xy_m, t0_ms=t0)
         except ValueError as exc:
             raise Conflict(f"start_xy_m: {exc}", code="bad_start", extra={"field": "start_xy_m"}) from None
-        summ = gaussian_summary(tracker.p_xy_m, tracker.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))
+        summ = mapmatch.current_summary(tracker)
         sess = TrackingSession(secrets.token_urlsafe(16), owner_id, floorplan_id, model, tracker, now)
         with self._lock:
             self._items[sess.id] = sess
@@ -126,7 +125,7 @@ class SessionStore:
 SESSIONS = SessionStore()
 
 
-def step_vectors(model: Any, steps: list[Any]) -> tuple[np.ndarray, np.ndarray]:
+def step_vectors(model: mapmatch.Model, steps: list[Any]) -> tuple[np.ndarray, np.ndarray]:
     """(n,) t_ms and (n, 2) floor-frame step vectors from ``StepIn`` items: a vector as
     given, or ``length · (cos(θ + b), sin(θ + b))`` with the model's heading bias b."""
     t = np.array([s.t_ms for s in steps], dtype=np.int64)
@@ -143,8 +142,6 @@ def step_vectors(model: Any, steps: list[Any]) -> tuple[np.ndarray, np.ndarray]:
 def _rows(name: str, rows: list[list[float]]) -> np.ndarray:
     a = np.asarray(rows, dtype=float) if rows else np.zeros((0, 4))
     if a.ndim != 2 or a.shape[1] != 4 or not np.all(np.isfinite(a)):
-        from posefix.errors import Unprocessable
-
         raise Unprocessable(f"sensors.{name}: rows must be [t_ms, x, y, z] finite numbers", code="bad_sensors",
                             extra={"field": f"sensors.{name}"})
     return a
@@ -152,30 +149,21 @@ def _rows(name: str, rows: list[list[float]]) -> np.ndarray:
 
 def steps_from_sensors(sess: TrackingSession, acc_rows: list[list[float]], rot_rows: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
     """Append raw samples to the session buffer; return the newly settled steps (t_ms, vectors)."""
-    from posefix.mapmatch.sensors import Steps, _wrap, detect_steps, heading_from_rotation_vector
-
     acc, rot = _rows("acc", acc_rows), _rows("rotvec", rot_rows)
     sess.acc = np.vstack([sess.acc, acc[np.argsort(acc[:, 0], kind="stable")]])
     sess.rotvec = np.vstack([sess.rotvec, rot[np.argsort(rot[:, 0], kind="stable")]])
     empty = (np.zeros(0, dtype=np.int64), np.zeros((0, 2)))
     if sess.acc.shape[0] < 16 or sess.rotvec.shape[0] < 2:
         return empty
-    t_steps, freq = detect_steps(sess.acc)
     settled_until = min(sess.acc[-1, 0], sess.rotvec[-1, 0]) - SETTLE_MS
-    # A peak can shift by a sample as more signal arrives: new steps must come at least
-    # the minimum step interval after the last one reported.
-    new = (t_steps > sess.last_step_ms + 300) & (t_steps <= settled_until)
-    if not np.any(new):
+    t_new, vec = mapmatch.settled_steps(sess.acc, sess.rotvec, sess.last_step_ms, settled_until, sess.model)
+    if t_new.size == 0:
         return empty
-    t_new, f_new = t_steps[new], freq[new]
-    th = np.unwrap(heading_from_rotation_vector(sess.rotvec[:, 1:4]))
-    heading = _wrap(np.interp(t_new, sess.rotvec[:, 0], th))
-    vec = Steps(t_ms=t_new, freq_hz=f_new, heading_rad=np.asarray(heading, dtype=float)).vectors_m(sess.model.step_model)
     sess.last_step_ms = float(t_new[-1])
     keep_from = sess.last_step_ms - BUFFER_MS
     sess.acc = sess.acc[sess.acc[:, 0] >= keep_from]
     sess.rotvec = sess.rotvec[sess.rotvec[:, 0] >= keep_from]
-    return t_new.astype(np.int64), vec
+    return t_new, vec
 
 
 def advance(sess: TrackingSession, t_ms: np.ndarray, vec: np.ndarray) -> list[dict[str, Any]]:

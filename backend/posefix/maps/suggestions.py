@@ -1,13 +1,11 @@
 """Map-matching suggestions for a pose run's keyframes (OpenStreetMap drivable area).
 
 The keyframes of a ready revision (their corrected positions, and the heading stored with
-them) are matched by :func:`posefix.mapmatch.suggest_for_run` in a worker job
-(``run.suggestions``): the demo's 10 min drive (601 keyframes) took 4-6 s a call (12 s on a
-busy machine), half of it reading the extract and building the drivable raster and graph.
-Those are now cached in the worker's memory (:func:`posefix.mapmatch.suggest.drivable_area`,
-keyed by the extract's hash and the snapped box), so a repeated suggestion (a new revision,
-another operator) takes about 1.1 s; the first one about 3.8 s. A finished job for the same
-run, revision and cell size is reused.
+them) are matched by :func:`posefix.mapmatch.api.suggest_for_run` in a worker job
+(``run.suggestions``). Reading the extract and building the drivable raster and graph is
+most of a call's cost, so the worker keeps them in memory
+(:func:`posefix.mapmatch.suggest.drivable_area`, keyed by the extract's hash and the snapped
+box), and a finished job for the same run, revision and cell size is reused.
 An accepted suggestion is submitted through the normal edits path as a move of kind
 ``suggestion``; see docs/maps-api.md for how it is weighted.
 """
@@ -57,7 +55,7 @@ def quaternion_from_heading(heading_deg_cw_from_north: np.ndarray) -> np.ndarray
 
 def suggest(session: Session, settings: Settings, run: Run, revision: int | None, cell_m: float) -> dict[str, Any]:
     from posefix.edits.service import ready
-    from posefix.mapmatch import suggest_for_run
+    from posefix.mapmatch.api import suggest_for_run
 
     t0 = time.perf_counter()
     number = run.revision if revision is None else revision

@@ -1,0 +1,99 @@
+"""The backend's import graph: no circles, and a numerical core that knows nothing of the web.
+
+Built with grimp from the source, so lazy imports inside functions count too: a circle
+hidden in a function body is still a circle a reader has to untangle.
+"""
+
+from __future__ import annotations
+
+import grimp
+import pytest
+
+WEB_OR_DB = ("fastapi", "starlette", "sqlalchemy", "alembic", "psycopg", "uvicorn", "pydantic_settings")
+APP_PARTS = ("main", "deps", "db", "config", "security", "errors", "users", "runs", "edits", "tasks", "maps",
+             "tiles", "jobs", "worker", "commands", "cli", "demo")
+CORE = ("posefix.core", "posefix.mapmatch", "posefix.io")
+
+
+@pytest.fixture(scope="module")
+def graph() -> grimp.ImportGraph:
+    return grimp.build_graph("posefix", include_external_packages=True)
+
+
+def own_modules(graph: grimp.ImportGraph) -> list[str]:
+    return sorted(m for m in graph.modules if m == "posefix" or m.startswith("posefix."))
+
+
+def strongly_connected(nodes: list[str], edges: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's algorithm, iterative: the groups of nodes that reach one another."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups: list[list[str]] = []
+    counter = 0
+    for root in nodes:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(edges.get(root, ()))))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, it = work[-1]
+            nxt = next(it, None)
+            if nxt is not None:
+                if nxt not in index:
+                    index[nxt] = low[nxt] = counter
+                    counter += 1
+                    stack.append(nxt)
+                    on_stack.add(nxt)
+                    work.append((nxt, iter(sorted(edges.get(nxt, ())))))
+                elif nxt in on_stack:
+                    low[v] = min(low[v], index[nxt])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                group = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    group.append(w)
+                    if w == v:
+                        break
+                if len(group) > 1:
+                    groups.append(sorted(group))
+    return groups
+
+
+def module_edges(graph: grimp.ImportGraph) -> dict[str, set[str]]:
+    own = set(own_modules(graph))
+    return {m: {w for w in graph.find_modules_directly_imported_by(m) if w in own} for m in own}
+
+
+def test_tarjan_finds_a_planted_circle():
+    edges = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert strongly_connected(["a", "b", "c", "d"], edges) == [["a", "b", "c"]]
+    assert strongly_connected(["a", "b"], {"a": {"b"}}) == []
+
+
+def test_no_module_imports_itself_back(graph):
+    circles = strongly_connected(own_modules(graph), module_edges(graph))
+    assert circles == [], f"import circles: {circles}"
+
+
+@pytest.mark.parametrize("core", CORE)
+def test_the_numerical_core_imports_no_web_or_database_code(graph, core):
+    offenders = []
+    for m in own_modules(graph):
+        if m != core and not m.startswith(core + "."):
+            continue
+        for w in graph.find_modules_directly_imported_by(m):
+            top = w.split(".")[0]
+            part = w.split(".")[1] if w.startswith("posefix.") and w.count(".") >= 1 else None
+            if top in WEB_OR_DB or part in APP_PARTS:
+                offenders.append((m, w))
+    assert offenders == [], f"{core} reaches web or database code: {offenders}"
