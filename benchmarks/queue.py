@@ -59,7 +59,7 @@ def prepare(url: str, data_dir: Path, n_runs: int, n_operators: int) -> tuple[li
     from posefix.io import write_run
     from posefix.runs import service as runs_service
     from posefix.security import hash_password
-    from posefix.tasks import clock, service as tasks_service
+    from posefix.tasks import clock, lifecycle
     from posefix.tasks.schemas import TaskCreate
     from posefix.users.models import Role, TokenScope, User
     from posefix.users.service import Principal, create_token
@@ -96,7 +96,7 @@ def prepare(url: str, data_dir: Path, n_runs: int, n_operators: int) -> tuple[li
                 k, _, _, lon, lat, _ = keyframe_columns(s, rid)[4]
                 moves[rid] = {"index": k, "lon": lon + 1e-5, "lat": lat}
             body = TaskCreate(title="bench", run_ids=run_ids, assignments_per_run=min(n_operators, 50), lease_s=600)
-            tasks_service.create_task(s, settings, ap, body, clock.now(), visible=visible_run_ids(ap, settings))
+            lifecycle.create_task(s, settings, ap, body, clock.now(), visible=visible_run_ids(ap, settings))
     finally:
         db.dispose()
     return tokens, moves

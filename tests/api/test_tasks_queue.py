@@ -9,7 +9,8 @@ from collections import Counter
 
 from sqlalchemy import func, select
 
-from posefix.tasks import service
+from posefix.tasks import leases, lifecycle, maintenance
+from posefix.tasks.states import MAINTAIN_JOB
 from posefix.tasks.models import Assignment, TaskEvent
 from tests.api.tasks_support import Env, env, task_body, truth_move  # noqa: F401
 
@@ -25,7 +26,7 @@ def _ask_all_at_once(env: Env, names: list[str]) -> list[dict]:
         try:
             barrier.wait()
             with env.db.transaction() as s:
-                out = service.next_assignment(s, env.principal(name, "operator"), env.clock.now())
+                out = leases.next_assignment(s, env.principal(name, "operator"), env.clock.now())
                 results[i] = {"assignment": out["assignment"].model_dump() if out["assignment"] else None,
                               "message": out["message"]}
         except BaseException as exc:  # noqa: BLE001 - reported below
@@ -96,7 +97,7 @@ def test_lease_expiry_late_submit_extend_and_return(env: Env) -> None:
     assert late.status_code == 410 and late.json()["error"] == "lease_expired"
     assert env.client("op1").post(f"/api/v1/assignments/{a['id']}/extend").status_code == 410
     with env.db.transaction() as s:
-        counts = service.maintain(s, env.clock.now())
+        counts = maintenance.maintain(s, env.clock.now())
     assert counts["leases_expired"] == 1
     late = env.client("op1").post(f"/api/v1/assignments/{a['id']}/submit", json={"moves": move})
     assert late.status_code == 410
@@ -133,10 +134,10 @@ def test_auto_approval_after_the_delay_merges_the_run(env: Env) -> None:
     assert env.client("admin").get(f"/api/v1/tasks/{task_id}").json()["runs"][0]["status"] == "agreed"
     env.clock.advance(3599)
     with env.db.transaction() as s:
-        assert service.maintain(s, env.clock.now())["auto_approved"] == 0
+        assert maintenance.maintain(s, env.clock.now())["auto_approved"] == 0
     env.clock.advance(2)
     with env.db.transaction() as s:
-        assert service.maintain(s, env.clock.now())["auto_approved"] == 1
+        assert maintenance.maintain(s, env.clock.now())["auto_approved"] == 1
     env.drain()
     mine = env.client("op1").get(f"/api/v1/assignments/{a['id']}").json()
     assert mine["status"] == "approved" and "automatically" in mine["feedback"]
@@ -159,7 +160,7 @@ def test_task_lifetime_ends_and_open_slots_are_withdrawn(env: Env) -> None:
     env.clock.advance(3601)
     assert env.client("op2").post("/api/v1/tasks/next").json()["assignment"] is None
     with env.db.transaction() as s:
-        assert service.maintain(s, env.clock.now())["tasks_expired"] == 1
+        assert maintenance.maintain(s, env.clock.now())["tasks_expired"] == 1
     task = env.client("admin").get(f"/api/v1/tasks/{task_id}").json()
     assert task["status"] == "expired" and task["counts"] == {"withdrawn": 3, "submitted": 1}
     # the one submission still reaches review and is merged; the untouched run stays open
@@ -173,12 +174,12 @@ def test_task_lifetime_ends_and_open_slots_are_withdrawn(env: Env) -> None:
     from posefix.jobs.models import Job
 
     with env.db.transaction() as s:
-        assert service.needs_maintenance(s) is False
-        for j in s.scalars(select(Job).where(Job.kind == service.MAINTAIN_JOB, Job.status == "queued")):
+        assert maintenance.needs_maintenance(s) is False
+        for j in s.scalars(select(Job).where(Job.kind == MAINTAIN_JOB, Job.status == "queued")):
             j.run_after = j.created_at  # due now
     env.drain()
     with env.db.transaction(write=False) as s:
-        left = [j.status for j in s.scalars(select(Job).where(Job.kind == service.MAINTAIN_JOB))]
+        left = [j.status for j in s.scalars(select(Job).where(Job.kind == MAINTAIN_JOB))]
     assert left and set(left) == {"succeeded"}
 
 
@@ -197,7 +198,7 @@ def test_same_client_token_at_once_makes_one_task(env: Env) -> None:
         try:
             barrier.wait()
             with env.db.transaction() as s:
-                task, _created = service.create_task(s, env.settings, admin, body, env.clock.now(),
+                task, _created = lifecycle.create_task(s, env.settings, admin, body, env.clock.now(),
                                                      visible=visible_run_ids(admin, env.settings))
                 ids.append(task.id)
         except BaseException as exc:  # noqa: BLE001 - reported below

@@ -30,12 +30,13 @@ def _db():  # type: ignore[no-untyped-def]
 @tasks_app.command("maintain")
 def maintain() -> None:
     """Return expired leases to the pool, auto-approve due work, expire old tasks (once)."""
-    from posefix.tasks import clock, service
+    from posefix.tasks import clock
+    from posefix.tasks.maintenance import maintain as maintain_tasks
 
     _settings, db = _db()
     try:
         with db.transaction() as s:
-            counts = service.maintain(s, clock.now())
+            counts = maintain_tasks(s, clock.now())
     finally:
         db.dispose()
     typer.echo(json.dumps(counts))
@@ -62,16 +63,13 @@ def list_tasks(status: Annotated[str | None, typer.Option(help="only tasks in th
 @tasks_app.command("operators")
 def operators() -> None:
     """Operator statistics as JSON lines."""
-    from sqlalchemy import select
-
-    from posefix.tasks import service
-    from posefix.users.models import Role, User
+    from posefix.tasks import repository as repo
+    from posefix.tasks.operators import operator_stats
 
     _settings, db = _db()
     try:
         with db.transaction(write=False) as s:
-            users = list(s.scalars(select(User).where(User.role == Role.operator).order_by(User.username)))
-            for row in service.operator_stats(s, users):
+            for row in operator_stats(s, repo.operators(s)):
                 row["qualifications"] = [{"name": q["name"], "value": q["value"]} for q in row["qualifications"]]
                 typer.echo(json.dumps(row, default=str))
     finally:

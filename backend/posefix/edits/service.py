@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from sqlalchemy.exc import IntegrityError
@@ -168,12 +168,23 @@ def _stale(session: Session, run: Run, base: int) -> Conflict:
     )
 
 
+class Author(Protocol):
+    """Whom a batch is written for: a signed-in ``Principal``, or a job acting for a user or for
+    nobody (``user_id`` None); an admin's or reviewer's accepted batch accepts the run."""
+
+    @property
+    def user_id(self) -> int | None: ...
+
+    @property
+    def role(self) -> Role: ...
+
+
 def _claim(session: Session, run: Run, base: int) -> None:
     if not runs_repo.claim_next_revision(session, run.id, base):
         raise _stale(session, run, base)
 
 
-def _enqueue_revision(session: Session, settings: Settings, run: Run, batch: EditBatch, principal: Principal, wake: Any) -> int:
+def _enqueue_revision(session: Session, settings: Settings, run: Run, batch: EditBatch, principal: Author, wake: Any) -> int:
     job = jobs.enqueue(
         session, REVISION_JOB, {"run_id": run.id, "batch_id": batch.id, "revision": batch.revision},
         run_id=run.id, created_by=principal.user_id, max_attempts=settings.job_max_attempts,
@@ -185,7 +196,7 @@ def _enqueue_revision(session: Session, settings: Settings, run: Run, batch: Edi
 
 
 def submit(
-    session: Session, settings: Settings, principal: Principal, run: Run, *, base: int, moves: list[MoveIn],
+    session: Session, settings: Settings, principal: Author, run: Run, *, base: int, moves: list[MoveIn],
     deleted: list[int], accept: bool, comment: str | None, task_id: int | None, wake: Any = None,
 ) -> tuple[EditBatch, int, list[dict[str, Any]]]:
     if not moves and not deleted and not accept:

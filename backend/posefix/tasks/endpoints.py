@@ -11,7 +11,6 @@ from typing import Annotated, Any
 
 import anyio
 from fastapi import APIRouter, Depends, File, Form, Query, Request, Response, UploadFile
-from sqlalchemy import select
 from sse_starlette.sse import EventSourceResponse
 
 from posefix.db import Database
@@ -20,12 +19,12 @@ from posefix.errors import NotFound, Unprocessable, responses
 from posefix.io import RunFormatError, read_run
 from posefix.runs import storage
 from posefix.runs.access import get_visible_run, visible_run_ids
-from posefix.tasks import clock, service
+from posefix.tasks import clock, leases, lifecycle, operators as ops, review as reviews, submission
 from posefix.tasks import repository as repo
-from posefix.tasks.models import AssignmentStatus, GoldRun, Task, TaskRun
+from posefix.tasks.models import AssignmentStatus, Task
 from posefix.tasks.schemas import (
     AssignmentPublic, GoldRunPublic, HomeAreaIn, NextResponse, OperatorStats, QualificationGrant, QualificationPublic,
-    ReviewIn, ReviewQueueItem, ReviewView, SubmissionView, SubmitIn, SubmitOut, TaskCreate, TaskList, TaskPublic,
+    ReviewIn, ReviewQueueItem, ReviewView, SubmitIn, SubmitOut, TaskCreate, TaskList, TaskPublic,
     TransitionPublic,
 )
 from posefix.users.models import Role, User
@@ -53,11 +52,11 @@ def create_task(body: TaskCreate, response: Response, principal: RequesterUser, 
     """Create a task over runs you may see. With ``client_token``, repeating the request within
     24 h returns the same task (200) instead of making another; the same token with other
     parameters is 409 ``client_token_reused``."""
-    task, created = service.create_task(session, settings, principal, body, clock.now(),
+    task, created = lifecycle.create_task(session, settings, principal, body, clock.now(),
                                         visible=visible_run_ids(principal, settings))
     if not created:
         response.status_code = 200
-    return service.task_public(session, task)
+    return lifecycle.task_public(session, task)
 
 
 @router.get("/tasks", response_model=TaskList, responses=responses(401, 403))
@@ -69,27 +68,27 @@ def list_tasks(
     """Tasks: a requester sees their own; admins and reviewers see all."""
     requester = principal.user_id if principal.role == Role.client else None
     rows, total = repo.list_tasks(session, requester, status, limit, offset)
-    return TaskList(items=[service.task_public(session, t, with_runs=False) for t in rows], total=total)
+    return TaskList(items=[lifecycle.task_public(session, t, with_runs=False) for t in rows], total=total)
 
 
 @router.get("/tasks/{task_id}", response_model=TaskPublic, responses=responses(401, 404))
 def get_task(task_id: int, principal: AnyUser, session: SessionDep) -> TaskPublic:
     """Status, counts of assignments by status, and each run's progress and conflicts (poll this, or use events)."""
-    return service.task_public(session, service.get_task(session, principal, task_id))
+    return lifecycle.task_public(session, lifecycle.get_task(session, principal, task_id))
 
 
 @router.post("/tasks/{task_id}/cancel", response_model=TaskPublic, responses=responses(401, 403, 404, 409, 415))
 def cancel_task(task_id: int, principal: RequesterUser, session: SessionDep) -> TaskPublic:
-    task = service.get_task(session, principal, task_id)
-    service.cancel_task(session, principal, task, clock.now())
-    return service.task_public(session, task)
+    task = lifecycle.get_task(session, principal, task_id)
+    lifecycle.cancel_task(session, principal, task, clock.now())
+    return lifecycle.task_public(session, task)
 
 
 @router.get("/tasks/{task_id}/history", response_model=list[TransitionPublic], responses=responses(401, 404))
 def task_history(task_id: int, principal: AnyUser, session: SessionDep,
                  after_id: Annotated[int, Query(ge=0)] = 0) -> list[TransitionPublic]:
     """Every transition of the task, its runs and assignments, oldest first (append-only)."""
-    service.get_task(session, principal, task_id)
+    lifecycle.get_task(session, principal, task_id)
     return [TransitionPublic.model_validate(e) for e in repo.history(session, task_id, after_id)]
 
 
@@ -104,7 +103,7 @@ async def task_events(
 
     def check() -> None:
         with db.transaction(write=False) as s:
-            service.get_task(s, principal, task_id)
+            lifecycle.get_task(s, principal, task_id)
 
     await anyio.to_thread.run_sync(check)
 
@@ -137,7 +136,7 @@ def task_eligibility(task_id: int, principal: OperatorUser, session: SessionDep)
     task = session.get(Task, task_id)
     if task is None or task.is_test:
         raise NotFound(f"task {task_id} not found", code="task_not_found")
-    reasons = service.eligibility(session, principal.user_id, task)
+    reasons = ops.eligibility(session, principal.user_id, task)
     return {"task_id": task_id, "eligible": not reasons, "reasons": reasons}
 
 
@@ -147,7 +146,7 @@ def task_eligibility(task_id: int, principal: OperatorUser, session: SessionDep)
 def next_task(principal: OperatorUser, session: SessionDep) -> dict[str, Any]:
     """Lease the highest-priority assignment you qualify for; ``assignment`` is null (with the
     reasons) when there is none."""
-    return service.next_assignment(session, principal, clock.now())
+    return leases.next_assignment(session, principal, clock.now())
 
 
 @router.get("/assignments/mine", response_model=list[AssignmentPublic], responses=responses(401, 403))
@@ -156,26 +155,26 @@ def my_assignments(principal: OperatorUser, session: SessionDep,
                    limit: Annotated[int, Query(ge=1, le=500)] = 100) -> list[AssignmentPublic]:
     now = clock.now()
     rows = repo.my_assignments(session, principal.user_id, tuple(status) if status else None, limit)
-    return [service.assignment_public(session, a, now) for a in rows]
+    return [leases.assignment_public(session, a, now) for a in rows]
 
 
 @router.get("/assignments/{assignment_id}", response_model=AssignmentPublic, responses=responses(401, 404))
 def get_assignment(assignment_id: int, principal: AnyUser, session: SessionDep) -> AssignmentPublic:
-    return service.assignment_public(session, service.visible_assignment(session, principal, assignment_id), clock.now())
+    return leases.assignment_public(session, leases.visible_assignment(session, principal, assignment_id), clock.now())
 
 
 @router.post("/assignments/{assignment_id}/extend", response_model=AssignmentPublic, responses=responses(401, 404, 409, 410, 415))
 def extend(assignment_id: int, principal: OperatorUser, session: SessionDep) -> AssignmentPublic:
     """Extend the lease to now + the task's assignment duration (while you are still working)."""
     now = clock.now()
-    return service.assignment_public(session, service.extend_lease(session, principal, assignment_id, now), now)
+    return leases.assignment_public(session, leases.extend_lease(session, principal, assignment_id, now), now)
 
 
 @router.post("/assignments/{assignment_id}/return", response_model=AssignmentPublic, responses=responses(401, 404, 409, 410, 415))
 def return_(assignment_id: int, principal: OperatorUser, session: SessionDep) -> AssignmentPublic:
     """Give the assignment back to the pool (you will not get this run again)."""
     now = clock.now()
-    return service.assignment_public(session, service.return_assignment(session, principal, assignment_id, now), now)
+    return leases.assignment_public(session, leases.return_assignment(session, principal, assignment_id, now), now)
 
 
 @router.post("/assignments/{assignment_id}/submit", response_model=SubmitOut, responses=responses(401, 404, 409, 410, 415, 422))
@@ -184,8 +183,8 @@ def submit(assignment_id: int, body: SubmitIn, request: Request, principal: Oper
     """Submit your edits (same shape as an edit batch). 410 ``lease_expired`` after the
     deadline (not counted); 422 ``edit_refused`` with a reason per refused edit."""
     now = clock.now()
-    a, flags = service.submit(session, settings, principal, assignment_id, body, now, wake=_wake(request))
-    return SubmitOut(assignment=service.assignment_public(session, a, now), flags=flags)  # type: ignore[arg-type]
+    a, flags = submission.submit(session, settings, principal, assignment_id, body, now, wake=_wake(request))
+    return SubmitOut(assignment=leases.assignment_public(session, a, now), flags=flags)  # type: ignore[arg-type]
 
 
 # -- review -----------------------------------------------------------------------------------------
@@ -205,27 +204,7 @@ def review_queue(principal: ReviewerUser, session: SessionDep,
 def review_view(task_run_id: int, principal: ReviewerUser, session: SessionDep) -> ReviewView:
     """Submissions side by side: each corrected track and its edits, the consensus and the
     per-keyframe disagreement."""
-    tr = session.get(TaskRun, task_run_id)
-    if tr is None:
-        raise NotFound(f"task run {task_run_id} not found", code="task_run_not_found")
-    from posefix.runs import repository as runs_repo
-
-    reported = [[c[3], c[4]] for c in runs_repo.keyframe_columns(session, tr.run_id)]
-    rows = [a for a in repo.run_assignments(session, tr.id) if a.status in
-            (AssignmentStatus.submitted, AssignmentStatus.approved, AssignmentStatus.rejected)]
-    names = {u.id: u.username for u in session.scalars(select(User).where(User.id.in_([a.operator_id for a in rows if a.operator_id])))}
-    subs = [
-        SubmissionView(
-            assignment_id=a.id, operator_id=a.operator_id, operator=names.get(a.operator_id or 0), status=AssignmentStatus(a.status),
-            submitted_at=a.submitted_at, comment=a.comment,
-            moves=[m for m in (a.edit_set or {}).get("moves", []) if int(m[0]) in set((a.edit_set or {}).get("own_moves", []))],
-            deleted=(a.edit_set or {}).get("deleted", []), positions=a.corrected, consensus_error_m=a.consensus_error_m,
-        )
-        for a in rows
-    ]
-    return ReviewView(task_run_id=tr.id, task_id=tr.task_id, run_id=tr.run_id, status=tr.status, reported=reported,
-                      consensus=tr.consensus, disagreement_m=tr.disagreement_m, conflicts=tr.conflicts, submissions=subs,
-                      merged_revision=tr.merged_revision)
+    return reviews.review_view(session, task_run_id)
 
 
 @router.post("/assignments/{assignment_id}/review", response_model=AssignmentPublic, responses=responses(401, 403, 404, 409, 415))
@@ -233,31 +212,25 @@ def review(assignment_id: int, body: ReviewIn, principal: ReviewerUser, session:
     """Approve or reject submitted work with feedback (never your own). When every submission
     of a run is decided, the approved work is merged into a new revision by the worker."""
     now = clock.now()
-    a = service.review(session, principal, assignment_id, body.decision, body.feedback, now)
-    return service.assignment_public(session, a, now)
+    a = reviews.review(session, principal, assignment_id, body.decision, body.feedback, now)
+    return leases.assignment_public(session, a, now)
 
 
 # -- operators ----------------------------------------------------------------------------------------
 
-def _operators(session: Any, ids: list[int] | None = None) -> list[User]:
-    # the list is of operators; a named user may be anyone who takes work
-    stmt = select(User).where(User.role == Role.operator) if ids is None else select(User).where(User.id.in_(ids))
-    return list(session.scalars(stmt.order_by(User.username)))
-
-
 @router.get("/operators", response_model=list[OperatorStats], responses=responses(401, 403))
 def operators(principal: AdminOnly, session: SessionDep) -> list[dict[str, Any]]:
     """Every operator: accuracy on gold runs, agreement with consensus, throughput, qualifications."""
-    return service.operator_stats(session, _operators(session))
+    return ops.operator_stats(session, repo.operators(session))
 
 
 @router.get("/operators/me", response_model=OperatorStats, responses=responses(401, 403))
 def my_stats(principal: OperatorUser, session: SessionDep) -> dict[str, Any]:
-    return service.operator_stats(session, _operators(session, [principal.user_id]))[0]
+    return ops.operator_stats(session, repo.operators(session, [principal.user_id]))[0]
 
 
 def _operator(session: Any, user_id: int) -> User:
-    users = _operators(session, [user_id])
+    users = repo.operators(session, [user_id])
     if not users:
         raise NotFound(f"operator {user_id} not found", code="operator_not_found")
     return users[0]
@@ -265,22 +238,22 @@ def _operator(session: Any, user_id: int) -> User:
 
 @router.put("/operators/me/home-area", response_model=OperatorStats, responses=responses(401, 403, 415, 422))
 def set_my_home(body: HomeAreaIn, principal: OperatorUser, session: SessionDep) -> dict[str, Any]:
-    service.set_home_area(session, principal.user_id, body, clock.now())
-    return service.operator_stats(session, [_operator(session, principal.user_id)])[0]
+    ops.set_home_area(session, principal.user_id, body, clock.now())
+    return ops.operator_stats(session, [_operator(session, principal.user_id)])[0]
 
 
 @router.put("/operators/{user_id}/home-area", response_model=OperatorStats, responses=responses(401, 403, 404, 415, 422))
 def set_home(user_id: int, body: HomeAreaIn, principal: AdminOnly, session: SessionDep) -> dict[str, Any]:
     user = _operator(session, user_id)
-    service.set_home_area(session, user_id, body, clock.now())
-    return service.operator_stats(session, [user])[0]
+    ops.set_home_area(session, user_id, body, clock.now())
+    return ops.operator_stats(session, [user])[0]
 
 
 @router.post("/operators/{user_id}/qualifications", response_model=QualificationPublic, status_code=201,
              responses=responses(401, 403, 404, 415, 422))
 def grant(user_id: int, body: QualificationGrant, principal: AdminOnly, session: SessionDep) -> QualificationPublic:
     _operator(session, user_id)
-    q = service.set_qualification(session, user_id, body.name, body.value, principal.user_id, clock.now(),
+    q = ops.set_qualification(session, user_id, body.name, body.value, principal.user_id, clock.now(),
                                   detail={"message": "granted by an admin"})
     return QualificationPublic.model_validate(q)
 
@@ -288,7 +261,7 @@ def grant(user_id: int, body: QualificationGrant, principal: AdminOnly, session:
 @router.delete("/operators/{user_id}/qualifications/{name}", status_code=204, responses=responses(401, 403, 404))
 def revoke(user_id: int, name: str, principal: AdminOnly, session: SessionDep) -> Response:
     _operator(session, user_id)
-    service.revoke_qualification(session, user_id, name)
+    ops.revoke_qualification(session, user_id, name)
     return Response(status_code=204)
 
 
@@ -323,11 +296,11 @@ def add_gold_run(
         raise Unprocessable(f"{name}: the truth ({pose.t_s[0]:.1f}..{pose.t_s[-1]:.1f} s) does not overlap run {run.id}",
                             code="invalid_truth", extra={"file": name, "field": "t"})
     rel = storage.write_samples(fs, f"gold/{run.id}/truth.parquet", pose)
-    gold = service.add_gold_run(session, settings, principal, run, rel, is_test=is_test, pass_error_m=pass_error_m, now=clock.now())
+    gold = lifecycle.add_gold_run(session, settings, principal, run, rel, is_test=is_test, pass_error_m=pass_error_m, now=clock.now())
     return GoldRunPublic.model_validate(gold)
 
 
 @router.get("/gold-runs", response_model=list[GoldRunPublic], responses=responses(401, 403))
 def list_gold_runs(principal: AdminOnly, session: SessionDep) -> list[GoldRunPublic]:
-    return [GoldRunPublic.model_validate(g) for g in session.scalars(select(GoldRun).order_by(GoldRun.run_id))]
+    return [GoldRunPublic.model_validate(g) for g in repo.gold_runs(session)]
 

@@ -22,7 +22,12 @@ from posefix.jobs.registry import JobContext, PermanentJobError, register
 from posefix.runs import correction, storage
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Run
-from posefix.tasks import clock, service
+from posefix.tasks import clock
+from posefix.tasks.maintenance import maintain as maintain_tasks
+from posefix.tasks.maintenance import needs_maintenance
+from posefix.tasks.merge import MergeRefused, merge_task_run
+from posefix.tasks.states import EVALUATE_JOB, MAINTAIN_EVERY_S, MAINTAIN_JOB, MERGE_JOB
+from posefix.tasks.submission import record_evaluation
 from posefix.tasks.models import Assignment, GoldRun
 
 
@@ -33,7 +38,7 @@ def _int(payload: dict[str, Any], key: str) -> int:
         raise PermanentJobError(f"bad payload {payload!r}: needs integer {key}") from None
 
 
-@register(service.EVALUATE_JOB)
+@register(EVALUATE_JOB)
 def evaluate_submission(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
     aid = _int(payload, "assignment_id")
     fs = storage.FileStore(ctx.settings.files_dir)
@@ -69,27 +74,30 @@ def evaluate_submission(ctx: JobContext, payload: dict[str, Any]) -> dict[str, A
         return np.column_stack([lo, la])
 
     with ctx.db.transaction() as s:
-        service.record_evaluation(s, aid, corrected, gold_error, clock.now(), reoptimise)
+        record_evaluation(s, aid, corrected, gold_error, clock.now(), reoptimise)
     return {"assignment_id": aid, "gold_error_m": gold_error}
 
 
-@register(service.MERGE_JOB)
+@register(MERGE_JOB)
 def merge(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
     trid = _int(payload, "task_run_id")
     actor = payload.get("actor_id")
-    with ctx.db.transaction() as s:
-        return service.merge_task_run(s, ctx.settings, trid, int(actor) if actor else None, clock.now())
+    try:
+        with ctx.db.transaction() as s:
+            return merge_task_run(s, ctx.settings, trid, int(actor) if actor else None, clock.now())
+    except MergeRefused as exc:
+        raise PermanentJobError(str(exc)) from None
 
 
-@register(service.MAINTAIN_JOB)
+@register(MAINTAIN_JOB)
 def maintain(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
     with ctx.db.transaction() as s:
-        counts = service.maintain(s, clock.now())
+        counts = maintain_tasks(s, clock.now())
     with ctx.db.transaction() as s:
         # keep ticking only while something can still expire or be auto-approved; creating a
-        # task or submitting work starts it again (service.ensure_maintenance)
-        if service.needs_maintenance(s):
-            nxt = jobs.enqueue(s, service.MAINTAIN_JOB, {}, max_attempts=1000)
-            nxt.run_after = utcnow() + dt.timedelta(seconds=service.MAINTAIN_EVERY_S)
-            counts["next_in_s"] = service.MAINTAIN_EVERY_S
+        # task or submitting work starts it again (posefix.tasks.states.ensure_maintenance)
+        if needs_maintenance(s):
+            nxt = jobs.enqueue(s, MAINTAIN_JOB, {}, max_attempts=1000)
+            nxt.run_after = utcnow() + dt.timedelta(seconds=MAINTAIN_EVERY_S)
+            counts["next_in_s"] = MAINTAIN_EVERY_S
     return counts

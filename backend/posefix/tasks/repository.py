@@ -21,6 +21,7 @@ from posefix.tasks.models import (
     Assignment, AssignmentStatus, GoldRun, OperatorProfile, OperatorQualification, Task, TaskEvent, TaskRun,
     TaskRunStatus, TaskStatus,
 )
+from posefix.users.models import Role, User
 
 ACTIVE_TASK = (TaskStatus.assignable, TaskStatus.in_progress)
 HELD = (AssignmentStatus.accepted,)
@@ -266,6 +267,20 @@ def run_assignments(session: Session, task_run_id: int) -> list[Assignment]:
 
 
 # -- operators ---------------------------------------------------------------------------
+
+def usernames(session: Session, user_ids: list[int]) -> dict[int, str]:
+    return {u.id: u.username for u in session.scalars(select(User).where(User.id.in_(user_ids)))}
+
+
+def operators(session: Session, user_ids: list[int] | None = None) -> list[User]:
+    """Every operator by name; with ``user_ids``, those users whatever their role (anyone may take work)."""
+    stmt = select(User).where(User.role == Role.operator) if user_ids is None else select(User).where(User.id.in_(user_ids))
+    return list(session.scalars(stmt.order_by(User.username)))
+
+
+def gold_runs(session: Session) -> list[GoldRun]:
+    return list(session.scalars(select(GoldRun).order_by(GoldRun.run_id)))
+
 
 def profile(session: Session, user_id: int) -> OperatorProfile | None:
     return session.get(OperatorProfile, user_id)
