@@ -10,66 +10,23 @@ the traceback of an unexpected ``ValueError``/``OSError`` instead.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
-import warnings
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Optional
 
 import typer
 
-from posefix.commands.common import single_threaded_blas
+from posefix.commands.common import CommandError, single_threaded_blas, user_errors
 
 app = typer.Typer()
 
-EXIT_BAD_INPUT = 1
 
 FORMAT_HELP = "csv, parquet, arrow, gpx, geojson, tum, kitti or comma2k19"
 ORIGIN_HELP = (
     "Origin of a TUM file's local ENU frame as 'lat,lon,alt' (degrees, degrees, metres above "
     "the WGS84 ellipsoid). Needed to read TUM; for writing TUM the default is the first sample."
 )
-
-
-class CommandError(Exception):
-    """A user-facing failure: printed as one line, exit status 1."""
-
-
-def _fail(message: str) -> None:
-    one_line = " ".join(str(message).split())  # messages from libraries may span lines
-    typer.echo(f"error: {one_line}", err=True)
-    raise typer.Exit(EXIT_BAD_INPUT)
-
-
-@contextmanager
-def _user_errors() -> Iterator[None]:
-    """Turn every expected failure into one line on stderr and a non-zero exit.
-
-    Warnings (e.g. an orientation derived from the track) are printed as one line each.
-    """
-    from posefix.io.errors import RunFormatError
-
-    def show_warning(message, category, filename, lineno, file=None, line=None):
-        typer.echo(f"warning: {message}", err=True)
-
-    old = warnings.showwarning
-    warnings.showwarning = show_warning
-    try:
-        yield
-    except typer.Exit:
-        raise
-    except (RunFormatError, CommandError) as exc:
-        _fail(str(exc))
-    except KeyboardInterrupt:
-        _fail("interrupted; nothing written")
-    except (ValueError, OSError) as exc:  # engine refusals, config errors, unreadable files
-        if os.environ.get("POSEFIX_DEBUG"):
-            raise
-        _fail(str(exc) if type(exc) is ValueError else f"{type(exc).__name__}: {exc}")
-    finally:
-        warnings.showwarning = old
 
 
 def _parse_origin(text: Optional[str]):
@@ -167,7 +124,7 @@ def correct_command(
 ) -> None:
     """Correct a pose run from operator edits: optimise keyframes, propagate to every sample."""
     single_threaded_blas()
-    with _user_errors():
+    with user_errors():
         t_start = time.perf_counter()
         if keyframes_every_s is not None and keyframes_every_m is not None:
             raise CommandError("give either --keyframes-every-s or --keyframes-every-m, not both")
@@ -258,7 +215,7 @@ def evaluate_command(
     origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
 ) -> None:
     """Horizontal and 3-D position error of RUN against TRUTH: RMSE, mean, median, 95th percentile, max (metres)."""
-    with _user_errors():
+    with user_errors():
         o = _parse_origin(origin)
         from posefix.core.evaluate import evaluate
         from posefix.io import read_run
@@ -294,7 +251,7 @@ def simulate_command(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Simulate a drive with ground truth: writes DIR/run.csv, DIR/truth.csv and DIR/edits.json."""
-    with _user_errors():
+    with user_errors():
         from posefix.core.simulate import REGIMES, simulate
 
         if regime not in REGIMES:
@@ -350,7 +307,7 @@ def convert_command(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Convert a pose run between formats (orientation derived from the track when IN has none)."""
-    with _user_errors():
+    with user_errors():
         o = _parse_origin(origin)
         from posefix.io import WRITE_FORMATS, detect_format, read_run, write_run
 

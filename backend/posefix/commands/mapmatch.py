@@ -16,6 +16,8 @@ from typing import Iterator, List, Optional
 
 import typer
 
+from posefix.commands.common import user_errors
+
 app = typer.Typer()
 
 mm = typer.Typer(
@@ -24,21 +26,6 @@ mm = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(mm, name="mapmatch")
-
-
-def _fail(message: str) -> None:
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(1)
-
-
-@contextmanager
-def _user_errors() -> Iterator[None]:
-    try:
-        yield
-    except typer.Exit:
-        raise
-    except (ValueError, OSError) as exc:
-        _fail(str(exc))
 
 
 @contextmanager
@@ -74,7 +61,7 @@ def build(
     shops_walkable: bool = typer.Option(False, "--shops-walkable/--shops-blocked", help="Let tracks enter shop polygons (no door data)."),
 ) -> None:
     """Build a floor graph (one vertex per walkable cell) and save the model."""
-    with _user_errors():
+    with user_errors():
         from tqdm import tqdm
 
         from posefix.mapmatch.floorplan import load_ilc_floor
@@ -102,7 +89,7 @@ def fingerprints(
     output: Path = typer.Option(..., "--output", "-o", help="Fingerprint file to write (.npz)."),
 ) -> None:
     """Build a WiFi fingerprint map (f3) and access-point peaks (f4) from surveyed walks."""
-    with _user_errors():
+    with user_errors():
         from tqdm import tqdm
 
         from posefix.mapmatch.fingerprints import build_fingerprints, save_fingerprints
@@ -134,7 +121,7 @@ def train(
 
     Each walk starts at its first waypoint; the waypoints clamp the likelihood (within 2 m).
     """
-    with _user_errors():
+    with user_errors():
         from tqdm import tqdm
 
         from posefix.mapmatch.api import train_model
@@ -170,7 +157,7 @@ def track(
              "(default: the model's, 20 s; 0 counts every scan as independent)."),
 ) -> None:
     """Track a walk: one row per step with the smoothed position and its 1σ error ellipse."""
-    with _user_errors():
+    with user_errors():
         import numpy as np
         from tqdm import tqdm
 
@@ -203,7 +190,7 @@ def evaluate(
     skip_first: bool = typer.Option(False, "--skip-first", help="Leave out the first waypoint (when it was the given start)."),
 ) -> None:
     """Error (m) at the waypoints, and at every row against the straight-line truth."""
-    with _user_errors():
+    with user_errors():
         from posefix.mapmatch.api import read_track_csv
         from posefix.mapmatch.evaluate import evaluate_track, summarise
         from posefix.mapmatch.sensors import read_walk
