@@ -67,6 +67,8 @@ export const api = {
   listTileSources: () => unwrap(client.GET("/api/v1/tile-sources")),
   addTileSource: (body: Schemas["TileSourceCreate"]) => unwrap(client.POST("/api/v1/tile-sources", { body })),
   deleteTileSource: (ref: string) => unwrap(client.DELETE("/api/v1/tile-sources/{ref}", { params: { path: { ref } } })),
+  /** Server-sent events of one run (revision.ready, ...), for an EventSource. */
+  runEventsUrl: (runId: string, maxS = 3600) => `/api/v1/events?run_id=${encodeURIComponent(runId)}&max_s=${maxS}`,
   styleUrl: () => `${location.origin}/api/v1/map/style.json`,
   imageUrl: (id: string) => `/api/v1/images/${encodeURIComponent(id)}`,
   thumbnailUrl: (id: string) => `/api/v1/images/${encodeURIComponent(id)}/thumbnail`,

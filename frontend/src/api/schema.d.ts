@@ -702,6 +702,9 @@ export interface paths {
         /**
          * Get Keyframes
          * @description Keyframes of a revision (default: the latest ready) as a GeoJSON FeatureCollection.
+         *
+         *     Rendered once per revision; a strong ``ETag`` answers ``If-None-Match`` with 304 (what a
+         *     browser sends when it reloads), and gzip is sent to clients that accept it.
          */
         get: operations["get_keyframes_api_v1_runs__run_id__keyframes_get"];
         put?: never;
@@ -817,9 +820,10 @@ export interface paths {
         put?: never;
         /**
          * Run Suggestions
-         * @description Map-matching suggestions for a run's keyframes against the OpenStreetMap drivable area:
-         *     per keyframe the matched lon/lat, how far it would move, whether it lies off the road,
-         *     and the match's 1σ. Accepting one is a move of kind ``suggestion`` (``POST /runs/{id}/edits``).
+         * @description Queue map-matching suggestions for a run's keyframes against the OpenStreetMap drivable
+         *     area (a job; its result is a ``SuggestionsOut``: per keyframe the matched lon/lat, how far
+         *     it would move, whether it lies off the road, and the match's 1σ). Accepting one is a move
+         *     of kind ``suggestion`` in ``POST /runs/{id}/edits``.
          */
         post: operations["run_suggestions_api_v1_runs__run_id__suggestions_post"];
         delete?: never;
@@ -1750,6 +1754,13 @@ export interface components {
              * @description [lon, lat] per keyframe
              */
             positions: number[][];
+            /**
+             * Preview
+             * @description what was solved: mode local|full, window [first, last] keyframe re-solved, full_solve, base_solved_in_request (the base revision had to be solved first); a preview keeps the base revision's drift estimate and is exact only after the commit
+             */
+            preview: {
+                [key: string]: unknown;
+            };
             /** Refusals */
             refusals: components["schemas"]["RefusalOut"][];
             /** Solver */
@@ -2234,6 +2245,20 @@ export interface components {
              * @description default: the latest ready revision
              */
             revision?: number | null;
+        };
+        /** SuggestionsJob */
+        SuggestionsJob: {
+            /**
+             * Job Id
+             * @description follow with GET /jobs/{id}; its result is a SuggestionsOut
+             */
+            job_id: number;
+            /** Revision */
+            revision: number;
+            /** Run Id */
+            run_id: number;
+            /** Status */
+            status: string;
         };
         /** SuggestionsOut */
         SuggestionsOut: {
@@ -5221,6 +5246,13 @@ export interface operations {
                     "application/json": unknown;
                 };
             };
+            /** @description Not Modified (If-None-Match) */
+            304: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content?: never;
+            };
             /** @description Not authenticated */
             401: {
                 headers: {
@@ -5624,13 +5656,22 @@ export interface operations {
             };
         };
         responses: {
-            /** @description Successful Response */
+            /** @description (the job's result, at GET /jobs/{job_id}): per keyframe the suggested lon/lat, moved_m, off_road, sigma_m */
             200: {
                 headers: {
                     [name: string]: unknown;
                 };
                 content: {
                     "application/json": components["schemas"]["SuggestionsOut"];
+                };
+            };
+            /** @description Successful Response */
+            202: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["SuggestionsJob"];
                 };
             };
             /** @description Not authenticated */

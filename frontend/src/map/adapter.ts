@@ -5,10 +5,12 @@
  * keyframes stay smooth.
  */
 import type { GeoJSONSource, Map as MlMap } from "maplibre-gl";
-import { type EditorState, currentEdits } from "../state/editor";
+import { type EditorState, currentEdits, currentSuggestions, displayPositions } from "../state/editor";
+import { suggestionsFC } from "../maps/suggestions";
 import {
   type FC,
   STATUS_COLORS,
+  emptyFC,
   ghostFC,
   keyframesFC,
   refusalFC,
@@ -19,6 +21,14 @@ import {
 import { arrowIcon, chevronIcon } from "./icons";
 
 export const KEYFRAME_LAYER = "pf-kf-hit";
+export const SUGGESTION_POINT_LAYER = "pf-sug-point";
+/** Machine suggestions in amber, distinct from the operator's blues. */
+export const SUGGESTION_COLOR = "#d97706";
+
+function suggestionLayerFC(s: EditorState): FC {
+  const g = currentSuggestions(s);
+  return g.kind === "ready" ? suggestionsFC(g.items, displayPositions(s), currentEdits(s)) : emptyFC();
+}
 
 interface SourceSpec {
   id: string;
@@ -33,6 +43,7 @@ const SOURCES: SourceSpec[] = [
   { id: "pf-selection", deps: (s) => [s.doc, currentEdits(s), s.preview, s.selected, s.rangeAnchor], build: selectionFC },
   { id: "pf-staging", deps: (s) => [s.doc, s.staging], build: stagingFC },
   { id: "pf-refusal", deps: (s) => [s.refusal], build: refusalFC },
+  { id: "pf-suggestions", deps: (s) => [currentSuggestions(s), s.doc, currentEdits(s), s.preview], build: suggestionLayerFC },
 ];
 
 const statusColor: unknown[] = ["match", ["get", "s"]];
@@ -123,6 +134,14 @@ export class MapAdapter {
     add({ id: "pf-staging-rubber", type: "line", source: "pf-staging", filter: ["==", ["get", "kind"], "rubber"], paint: { "line-color": "#0ea5e9", "line-width": 2, "line-dasharray": [2, 2] } });
     add({ id: "pf-staging-point", type: "circle", source: "pf-staging", filter: ["==", ["get", "kind"], "point"], paint: { "circle-radius": 8, "circle-color": "#0ea5e9", "circle-stroke-color": "#fff", "circle-stroke-width": 2 } });
     add({ id: "pf-refusal-ring", type: "circle", source: "pf-refusal", paint: { "circle-radius": 14, "circle-color": "rgba(220,38,38,0.15)", "circle-stroke-color": "#dc2626", "circle-stroke-width": 3 } });
+    const sug = (kind: string) => ["==", ["get", "kind"], kind] as never;
+    add({ id: "pf-sug-path", type: "line", source: "pf-suggestions", filter: sug("path"), paint: { "line-color": SUGGESTION_COLOR, "line-width": 2, "line-opacity": 0.7, "line-dasharray": [3, 2] } });
+    add({ id: "pf-sug-link", type: "line", source: "pf-suggestions", filter: sug("link"), paint: { "line-color": SUGGESTION_COLOR, "line-width": 1.5, "line-dasharray": [1, 1.5] } });
+    add({ id: "pf-sug-offroad", type: "circle", source: "pf-suggestions", filter: sug("offroad"), paint: { "circle-radius": 11, "circle-color": "rgba(0,0,0,0)", "circle-stroke-color": "#b91c1c", "circle-stroke-width": 2 } });
+    add({
+      id: SUGGESTION_POINT_LAYER, type: "circle", source: "pf-suggestions", filter: sug("point"),
+      paint: { "circle-radius": 6, "circle-color": ["case", ["get", "accepted"], SUGGESTION_COLOR, "#ffffff"], "circle-stroke-color": SUGGESTION_COLOR, "circle-stroke-width": 2.5 },
+    });
     this.lastDeps.clear();
     this.hidden = null;
   }

@@ -1,27 +1,13 @@
 /**
- * Calls of the map-matching API (floor plans, walks, suggestions). Plain fetch: the routes
- * are newer than the generated client's schema; errors become the same ApiError.
+ * Calls of the map-matching API (floor plans, walks, suggestions) and job polling, over the
+ * typed client generated from the server's OpenAPI spec. Uploads are multipart: the
+ * FormData goes through as is (the browser sets the boundary).
  */
-import { apiErrorFrom, networkError } from "../api/errors";
+import { type Schemas, client, unwrap } from "../api/client";
 
-export interface FloorPlan {
-  id: number;
-  name: string;
-  source: string;
-  status: "queued" | "ready" | "failed" | string;
-  cell_m: number;
-  width_m: number;
-  height_m: number;
-  georef: number[] | null;
-  has_image: boolean;
-  n_vertices: number | null;
-  model_bytes: number | null;
-  build_s: number | null;
-  error: string | null;
-  job_id: number | null;
-  created_at: string;
-}
+export type FloorPlan = Schemas["FloorPlanPublic"];
 
+/** One step of a tracked walk (the spec leaves `WalkTrack.steps` items open: this is their shape). */
 export interface WalkStep {
   i: number;
   t_ms: number;
@@ -43,55 +29,35 @@ export interface WaypointError {
   given_start: boolean;
 }
 
+/** `Schemas["WalkTrack"]` with its open members spelled out. */
 export interface WalkTrack {
   steps: WalkStep[];
   errors: { n: number; mean_m: number | null; median_m: number | null; p95_m: number | null; max_m: number | null; dr_mean_m?: number; skip_first: boolean; waypoints: WaypointError[] };
   walk: { file: string; n_steps: number; start: string; track_ms: number; ms_per_step: number };
 }
+export type JobView = Schemas["JobPublic"];
 
-async function call<T>(method: string, url: string, body?: BodyInit | object): Promise<T> {
-  const init: RequestInit = { method, credentials: "same-origin", headers: { Accept: "application/json" } };
-  if (body instanceof FormData) init.body = body;
-  else if (body !== undefined) {
-    init.body = JSON.stringify(body);
-    (init.headers as Record<string, string>)["Content-Type"] = "application/json";
-  }
-  let r: Response;
-  try {
-    r = await fetch(url, init);
-  } catch (err) {
-    throw networkError(err);
-  }
-  const text = await r.text();
-  let data: unknown = text;
-  try {
-    data = text ? JSON.parse(text) : null;
-  } catch {
-    /* not JSON */
-  }
-  if (!r.ok) throw apiErrorFrom(r.status, data, r.statusText);
-  return data as T;
-}
+const fid = (id: number) => ({ params: { path: { floorplan_id: id } } });
+// The generated multipart body types describe fields; a FormData carries them.
+const form = (fd: FormData) => ({ body: fd as never, bodySerializer: (b: unknown) => b as FormData });
 
 export const mapsApi = {
-  listFloors: () => call<{ items: FloorPlan[]; total: number }>("GET", "/api/v1/floorplans"),
-  getFloor: (id: number) => call<FloorPlan>("GET", `/api/v1/floorplans/${id}`),
-  uploadFloor: (form: FormData) => call<FloorPlan>("POST", "/api/v1/floorplans", form),
-  deleteFloor: (id: number) => call<null>("DELETE", `/api/v1/floorplans/${id}`),
-  trackWalk: (id: number, form: FormData) => call<WalkTrack>("POST", `/api/v1/floorplans/${id}/walks`, form),
+  listFloors: () => unwrap(client.GET("/api/v1/floorplans")),
+  getFloor: (id: number) => unwrap(client.GET("/api/v1/floorplans/{floorplan_id}", fid(id))),
+  uploadFloor: (fd: FormData) => unwrap(client.POST("/api/v1/floorplans", form(fd))),
+  deleteFloor: (id: number) => unwrap(client.DELETE("/api/v1/floorplans/{floorplan_id}", fid(id))),
+  trackWalk: async (id: number, fd: FormData): Promise<WalkTrack> =>
+    (await unwrap(client.POST("/api/v1/floorplans/{floorplan_id}/walks", { ...fid(id), ...form(fd) }))) as unknown as WalkTrack,
   imageUrl: (id: number) => `/api/v1/floorplans/${id}/image`,
   modelUrl: (id: number) => `/api/v1/floorplans/${id}/model`,
-  suggestions: (runId: string) => call<{ job_id: number; status: string; revision: number }>("POST", `/api/v1/runs/${encodeURIComponent(runId)}/suggestions`, {}),
-  getJob: (id: number) => call<JobView>("GET", `/api/v1/jobs/${id}`),
+  /** Start matching a run (the answer is a job; its result is the suggestions). */
+  suggestions: async (runId: string): Promise<Schemas["SuggestionsJob"]> => {
+    const r = await unwrap(client.POST("/api/v1/runs/{run_id}/suggestions", { params: { path: { run_id: Number(runId) } }, body: {} }));
+    if (!("job_id" in r)) throw new Error("The server answered suggestions without a job.");
+    return r;
+  },
+  getJob: (id: number) => unwrap(client.GET("/api/v1/jobs/{job_id}", { params: { path: { job_id: id } } })),
 };
-
-export interface JobView {
-  status: string;
-  progress: number;
-  message: string | null;
-  last_error: string | null;
-  result: unknown;
-}
 
 /** Poll a job until it has finished; its result, or an Error with the job's reason. */
 export async function jobResult(jobId: number, onProgress: (fraction: number, message: string | null) => void, alive: () => boolean = () => true, pollMs = 400, timeoutMs = 120_000): Promise<unknown> {
@@ -102,7 +68,7 @@ export async function jobResult(jobId: number, onProgress: (fraction: number, me
     if (job.status === "dead") throw new Error((job.last_error ?? "the job failed").split("\n")[0]);
     if (!alive()) throw new Error("cancelled");
     if (Date.now() - t0 > timeoutMs) throw new Error("the job is taking long; try again later");
-    onProgress(job.progress, job.message);
+    onProgress(job.progress, job.message ?? null);
     await new Promise((r) => setTimeout(r, pollMs));
   }
 }

@@ -5,7 +5,7 @@
  * step-by-step replay (play/pause/scrub) and the error at each surveyed waypoint).
  */
 import { describeError } from "../api/errors";
-import type { AppContext } from "../ui/app";
+import type { AppContext } from "../ui/context";
 import { clear, fmtTime, h } from "../ui/dom";
 import { type FloorPlan, type WalkTrack, jobResult, mapsApi } from "./api";
 import { ellipsePx, fitBox, fmtM, reachedWaypoints, toPx, walkBox } from "./floorView";

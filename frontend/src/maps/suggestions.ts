@@ -8,24 +8,9 @@
  */
 import type { EditAction, EditResult } from "../actions/edits";
 import { checkNewMove } from "../rules/apply";
-import type { Edits, LonLat, Refusal, RunDoc } from "../state/types";
+import type { Edits, LonLat, Refusal, RunDoc, Suggestion, SuggestionsState } from "../state/types";
 
-export interface Suggestion {
-  index: number;
-  lonlat: LonLat;
-  /** Distance from the keyframe's position at the matched revision (m). */
-  moved_m: number;
-  off_road: boolean;
-  /** 1σ of the match (m). */
-  sigma_m: number;
-  adjustable: boolean;
-}
-
-export type SuggestionsState =
-  | { kind: "idle" }
-  | { kind: "loading" }
-  | { kind: "error"; message: string }
-  | { kind: "ready"; revision: number; items: Suggestion[]; offRoad: number; timeMs: number };
+export type { Suggestion, SuggestionsState };
 
 /** Suggestions worth offering: adjustable keyframes the match would move by at least `minMoveM`. */
 export function offered(items: readonly Suggestion[], minMoveM = 0.5): Suggestion[] {

@@ -5,7 +5,7 @@
 import { distanceM } from "../rules/geodesy";
 import { lockedMask } from "../rules/rules";
 import { type History, historyCurrent, historyNew } from "./history";
-import type { Drift, Edits, LonLat, Refusal, RunDoc } from "./types";
+import type { Drift, Edits, LonLat, Refusal, RunDoc, SuggestionsState } from "./types";
 
 export type ModeName = "browse" | "drag" | "select-range";
 
@@ -50,6 +50,8 @@ export interface EditorState {
   /** A network or server error to show plainly. */
   error: string | null;
   lastSolverTimeS: number | null;
+  /** Map-matching suggestions, for the revision they were computed on. */
+  suggestions: SuggestionsState;
 }
 
 export function editorNew(): EditorState {
@@ -69,6 +71,7 @@ export function editorNew(): EditorState {
     submit: { kind: "idle" },
     error: null,
     lastSolverTimeS: null,
+    suggestions: { kind: "idle" },
   };
 }
 
@@ -134,4 +137,10 @@ export function correctionMagnitudes(s: EditorState): number[] {
 /** The drift estimate to show: the preview's when current, else the loaded revision's. */
 export function currentDrift(s: EditorState): Drift | null {
   return previewIsCurrent(s) && s.preview!.drift ? s.preview!.drift : (s.doc?.drift ?? null);
+}
+
+/** The suggestions that apply to the shown revision (those of an older one are dropped). */
+export function currentSuggestions(s: EditorState): SuggestionsState {
+  const g = s.suggestions;
+  return g.kind === "ready" && s.doc && s.doc.revision !== g.revision ? { kind: "idle" } : g;
 }

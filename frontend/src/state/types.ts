@@ -93,3 +93,21 @@ export const EMPTY_EDITS: Edits = Object.freeze({
   deleted: new Set<number>(),
   accept: false,
 });
+
+/** A map-matching suggestion: where the street map would put keyframe `index`. */
+export interface Suggestion {
+  index: number;
+  lonlat: LonLat;
+  /** Distance from the keyframe's position at the matched revision (m). */
+  moved_m: number;
+  off_road: boolean;
+  /** 1σ of the match (m). */
+  sigma_m: number;
+  adjustable: boolean;
+}
+
+export type SuggestionsState =
+  | { kind: "idle" }
+  | { kind: "loading" }
+  | { kind: "error"; message: string }
+  | { kind: "ready"; revision: number; items: Suggestion[]; offRoad: number; timeMs: number };

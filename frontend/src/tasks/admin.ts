@@ -2,13 +2,12 @@
  * Requester/admin page: create a task (runs chosen from a list and on a map) and monitor
  * tasks: progress by assignment status, each run's state and conflicts (polled).
  */
-import * as maplibregl from "maplibre-gl";
-import workerUrl from "maplibre-gl/dist/maplibre-gl-worker.mjs?url";
+import type * as maplibregl from "maplibre-gl";
 import { describeError } from "../api/errors";
-import type { AppContext } from "../ui/app";
+import type { AppContext } from "../ui/context";
 import { fmtTime, h } from "../ui/dom";
-import { fetchStyle } from "../ui/editor/basemap";
-import { type Json, type Task, tasksApi } from "./api";
+import { createMap, fitBoxes } from "../map/createMap";
+import { type Json, type Task, type TaskCreate, tasksApi } from "./api";
 import { fmtReward, requirementText } from "./format";
 
 const COMPARATORS = ["ge", "gt", "le", "lt", "eq", "ne", "exists", "not_exists", "in", "not_in", "contains", "passed"];
@@ -116,27 +115,28 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
 
   async function showMap() {
     if (runs.length === 0) return;
-    maplibregl.setWorkerUrl(workerUrl);
-    const { style } = await fetchStyle();
-    const m = new maplibregl.Map({ container: mapEl, style, center: [24.94, 60.17], zoom: 11, attributionControl: false, fadeDuration: 0 });
+    const made = await createMap(mapEl, { zoom: 11, compactAttribution: true, alive: () => alive });
+    if (!made) return;
+    const m = made.map;
     map = m;
-    m.addControl(new maplibregl.AttributionControl({ compact: true }), "bottom-right");
     m.on("load", () => {
       m.addSource("runs", { type: "geojson", data: runsGeoJSON() });
       m.addLayer({ id: "runs-fill", type: "fill", source: "runs",
         paint: { "fill-color": ["case", ["==", ["get", "selected"], 1], "#2563eb", "#94a3b8"], "fill-opacity": 0.25 } });
       m.addLayer({ id: "runs-line", type: "line", source: "runs",
         paint: { "line-color": ["case", ["==", ["get", "selected"], 1], "#1d4ed8", "#475569"], "line-width": 2 } });
-      const all = runs.map((r) => r.bbox);
-      m.fitBounds([[Math.min(...all.map((b) => b[0])), Math.min(...all.map((b) => b[1]))],
-        [Math.max(...all.map((b) => b[2])), Math.max(...all.map((b) => b[3]))]], { padding: 30, animate: false, maxZoom: 15 });
+      fitBoxes(m, runs.map((r) => r.bbox), { padding: 30, maxZoom: 15 });
       m.on("click", "runs-fill", (e) => {
         const id = Number(e.features?.[0]?.properties?.id);
         if (Number.isFinite(id)) toggle(id, !selected.has(id));
       });
     });
   }
-  cleanups.push(() => map?.remove());
+  let alive = true;
+  cleanups.push(() => {
+    alive = false;
+    map?.remove();
+  });
 
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -165,8 +165,8 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
       return;
     }
     try {
-      const t = await tasksApi.create(body);
-      formMsg.textContent = `Task ${t.id} created with ${t.counts.open ?? 0} assignments open.`;
+      const t = await tasksApi.create(body as TaskCreate);
+      formMsg.textContent = `Task ${t.id} created with ${t.counts?.open ?? 0} assignments open.`;
       void refresh();
     } catch (err) {
       formMsg.textContent = describeError(err);
@@ -174,7 +174,7 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
   });
 
   function taskRow(t: Task): HTMLElement {
-    const counts = Object.entries(t.counts).map(([k, v]) => `${k} ${v}`).join(", ") || "—";
+    const counts = Object.entries(t.counts ?? {}).map(([k, v]) => `${k} ${v}`).join(", ") || "—";
     return h("article", { class: "task-item", "data-testid": `task-${t.id}` },
       h("h3", {}, `${t.title} `, h("span", { class: `status status-${t.status}`, "data-testid": "task-status" }, t.status)),
       h("p", { class: "muted" }, `#${t.id} · priority ${t.priority} · ${t.assignments_per_run} per run · ${fmtReward(t.reward_cents, t.currency)} · ends ${fmtTime(t.expires_at)}`),
@@ -182,10 +182,10 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
       h("p", {}, "Assignments: ", counts),
       h("table", { class: "table" },
         h("thead", {}, h("tr", {}, h("th", {}, "Run"), h("th", {}, "State"), h("th", {}, "Assignments"), h("th", {}, "Conflicts"), h("th", {}, "Merged revision"))),
-        h("tbody", {}, ...t.runs.map((r) => h("tr", { "data-testid": `task-run-${r.id}` },
+        h("tbody", {}, ...(t.runs ?? []).map((r) => h("tr", { "data-testid": `task-run-${r.id}` },
           h("td", {}, h("a", { href: `#/runs/${r.run_id}` }, String(r.run_id))),
           h("td", {}, h("span", { class: `status status-${r.status}`, "data-testid": "run-state" }, r.status)),
-          h("td", {}, Object.entries(r.counts).map(([k, v]) => `${k} ${v}`).join(", ")),
+          h("td", {}, Object.entries(r.counts ?? {}).map(([k, v]) => `${k} ${v}`).join(", ")),
           h("td", { "data-testid": "run-conflicts" }, r.conflicts?.length ? h("a", { href: `#/tasks/review/${r.id}` }, `${r.conflicts.length} — review`) : "none"),
           h("td", { "data-testid": "merged-revision" }, r.merged_revision === null ? "" : String(r.merged_revision)),
         )))),

@@ -1,86 +1,51 @@
 /**
- * Calls of the tasks API (/api/v1/tasks, /assignments, /review, /operators). Plain fetch with
- * the app's ApiError, so pages show the server's reason in words.
+ * Calls of the tasks API (/api/v1/tasks, /assignments, /review, /operators) over the typed
+ * client generated from the server's OpenAPI spec; errors are the app's ApiError, so pages
+ * show the server's reason in words.
  */
-import { ApiError, apiErrorFrom, networkError } from "../api/errors";
+import { type Schemas, client, unwrap } from "../api/client";
 
 export type Json = Record<string, unknown>;
+export type Assignment = Schemas["AssignmentPublic"];
+export type NextResponse = Schemas["NextResponse"];
+export type Task = Schemas["TaskPublic"];
+export type TaskRun = Schemas["TaskRunPublic"];
+export type Submission = Schemas["SubmissionView"];
+export type ReviewView = Schemas["ReviewView"];
+export type ReviewItem = Schemas["ReviewQueueItem"];
+export type OperatorStats = Schemas["OperatorStats"];
+export type TaskCreate = Schemas["TaskCreate"];
+export type SubmitIn = Schemas["SubmitIn"];
+export type HomeArea = Schemas["HomeAreaIn"];
 
-export interface TaskBrief { id: number; title: string; instructions: string; reward_cents: number; currency: string; rules: Json | null }
-export interface Assignment {
-  id: number; task_id: number; run_id: number; status: string; operator_id: number | null; base_revision: number | null;
-  leased_at: string | null; lease_expires_at: string | null; lease_remaining_s: number | null; submitted_at: string | null;
-  comment: string | null; feedback: string | null; reviewed_at: string | null; auto_approve_at: string | null; task: TaskBrief;
-}
-export interface Ineligible { task_id: number; title: string; reasons: string[] }
-export interface NextResponse { assignment: Assignment | null; message: string; ineligible: Ineligible[] }
-export interface TaskRun { id: number; run_id: number; wanted: number; status: string; conflicts: Json[] | null; merged_revision: number | null; counts: Record<string, number> }
-export interface Task {
-  id: number; title: string; instructions: string; status: string; priority: number; assignments_per_run: number;
-  reward_cents: number; currency: string; counts: Record<string, number>; runs: TaskRun[]; expires_at: string;
-  requirements: Json[]; conflict_policy: string;
-}
-export interface Submission {
-  assignment_id: number; operator_id: number | null; operator: string | null; status: string; submitted_at: string | null;
-  comment: string | null; moves: [number, number, number, number | null][]; deleted: number[];
-  positions: [number, number][] | null; consensus_error_m: number | null;
-}
-export interface ReviewView {
-  task_run_id: number; task_id: number; run_id: number; status: string; reported: [number, number][];
-  consensus: [number, number][] | null; disagreement_m: number[] | null; conflicts: Json[] | null;
-  submissions: Submission[]; merged_revision: number | null;
-}
-export interface ReviewItem { task_run_id: number; task_id: number; task_title: string; run_id: number; status: string; submitted: number; conflicts: number }
-export interface OperatorStats {
-  user_id: number; username: string; submitted: number; approved: number; rejected: number; returned: number; expired: number;
-  accuracy_m: number | null; gold_scored: number; agreement_m: number | null; throughput_per_h: number | null;
-  mean_work_s: number | null; test_status: string; home_area: Json | null; qualifications: { name: string; value: number }[];
-}
-
-async function call<T>(method: string, path: string, body?: unknown): Promise<T> {
-  let r: Response;
-  try {
-    r = await fetch(`/api/v1${path}`, {
-      method, credentials: "same-origin",
-      headers: body === undefined ? { Accept: "application/json" } : { Accept: "application/json", "Content-Type": "application/json" },
-      body: body === undefined ? undefined : JSON.stringify(body),
-    });
-  } catch (err) {
-    throw networkError(err);
-  }
-  if (r.status === 204) return undefined as T;
-  let data: unknown = null;
-  const text = await r.text();
-  try {
-    data = text ? JSON.parse(text) : null;
-  } catch {
-    data = text;
-  }
-  if (!r.ok) throw apiErrorFrom(r.status, data, r.statusText);
-  return data as T;
-}
+const aid = (id: number) => ({ params: { path: { assignment_id: id } } });
+const tid = (id: number) => ({ params: { path: { task_id: id } } });
 
 export const tasksApi = {
-  next: () => call<NextResponse>("POST", "/tasks/next"),
-  mine: (status?: string) => call<Assignment[]>("GET", `/assignments/mine${status ? `?status=${status}` : ""}`),
-  assignment: (id: number) => call<Assignment>("GET", `/assignments/${id}`),
-  extend: (id: number) => call<Assignment>("POST", `/assignments/${id}/extend`),
-  giveBack: (id: number) => call<Assignment>("POST", `/assignments/${id}/return`),
-  submit: (id: number, body: Json) => call<{ assignment: Assignment; flags: Json[] }>("POST", `/assignments/${id}/submit`, body),
-  create: (body: Json) => call<Task>("POST", "/tasks", body),
-  list: () => call<{ items: Task[]; total: number }>("GET", "/tasks?limit=200"),
-  get: (id: number) => call<Task>("GET", `/tasks/${id}`),
-  cancel: (id: number) => call<Task>("POST", `/tasks/${id}/cancel`),
-  reviewQueue: () => call<ReviewItem[]>("GET", "/review/queue"),
-  reviewView: (taskRunId: number) => call<ReviewView>("GET", `/task-runs/${taskRunId}/review`),
+  next: () => unwrap(client.POST("/api/v1/tasks/next", {})),
+  mine: (status?: Schemas["AssignmentStatus"]) =>
+    unwrap(client.GET("/api/v1/assignments/mine", { params: { query: status ? { status: [status] } : {} } })),
+  assignment: (id: number) => unwrap(client.GET("/api/v1/assignments/{assignment_id}", aid(id))),
+  extend: (id: number) => unwrap(client.POST("/api/v1/assignments/{assignment_id}/extend", aid(id))),
+  giveBack: (id: number) => unwrap(client.POST("/api/v1/assignments/{assignment_id}/return", aid(id))),
+  submit: (id: number, body: SubmitIn) => unwrap(client.POST("/api/v1/assignments/{assignment_id}/submit", { ...aid(id), body })),
+  create: (body: TaskCreate) => unwrap(client.POST("/api/v1/tasks", { body })),
+  list: () => unwrap(client.GET("/api/v1/tasks", { params: { query: { limit: 200 } } })),
+  get: (id: number) => unwrap(client.GET("/api/v1/tasks/{task_id}", tid(id))),
+  cancel: (id: number) => unwrap(client.POST("/api/v1/tasks/{task_id}/cancel", tid(id))),
+  reviewQueue: () => unwrap(client.GET("/api/v1/review/queue")),
+  reviewView: (taskRunId: number) => unwrap(client.GET("/api/v1/task-runs/{task_run_id}/review", { params: { path: { task_run_id: taskRunId } } })),
   review: (assignmentId: number, decision: "approve" | "reject", feedback: string) =>
-    call<Assignment>("POST", `/assignments/${assignmentId}/review`, { decision, feedback: feedback || null }),
-  operators: () => call<OperatorStats[]>("GET", "/operators"),
-  me: () => call<OperatorStats>("GET", "/operators/me"),
-  grant: (userId: number, name: string, value: number) => call<Json>("POST", `/operators/${userId}/qualifications`, { name, value }),
-  revoke: (userId: number, name: string) => call<void>("DELETE", `/operators/${userId}/qualifications/${encodeURIComponent(name)}`),
-  setHome: (userId: number | "me", body: Json) => call<OperatorStats>("PUT", `/operators/${userId}/home-area`, body),
-  runs: () => call<{ items: { id: number; name: string; status: string; bbox: number[]; n_keyframes: number }[] }>("GET", "/runs?limit=500"),
+    unwrap(client.POST("/api/v1/assignments/{assignment_id}/review", { ...aid(assignmentId), body: { decision, feedback: feedback || null } })),
+  operators: () => unwrap(client.GET("/api/v1/operators")),
+  me: () => unwrap(client.GET("/api/v1/operators/me")),
+  grant: (userId: number, name: string, value: number) =>
+    unwrap(client.POST("/api/v1/operators/{user_id}/qualifications", { params: { path: { user_id: userId } }, body: { name, value } })),
+  revoke: (userId: number, name: string) =>
+    unwrap(client.DELETE("/api/v1/operators/{user_id}/qualifications/{name}", { params: { path: { user_id: userId, name } } })),
+  setHome: (userId: number | "me", body: HomeArea) =>
+    userId === "me"
+      ? unwrap(client.PUT("/api/v1/operators/me/home-area", { body }))
+      : unwrap(client.PUT("/api/v1/operators/{user_id}/home-area", { params: { path: { user_id: userId } }, body })),
+  runs: () => unwrap(client.GET("/api/v1/runs", { params: { query: { limit: 500 } } })),
 };
-
-export { ApiError };

@@ -1,6 +1,6 @@
 /** Admin page: operators, their statistics, qualifications and home areas. */
 import { describeError } from "../api/errors";
-import type { AppContext } from "../ui/app";
+import type { AppContext } from "../ui/context";
 import { h } from "../ui/dom";
 import { type OperatorStats, tasksApi } from "./api";
 

@@ -3,12 +3,11 @@
  * map — each operator's corrected track and moves in its own colour, the consensus dashed,
  * keyframes coloured by disagreement — with approve / reject and feedback per submission.
  */
-import * as maplibregl from "maplibre-gl";
-import workerUrl from "maplibre-gl/dist/maplibre-gl-worker.mjs?url";
+import type * as maplibregl from "maplibre-gl";
 import { describeError } from "../api/errors";
-import type { AppContext } from "../ui/app";
+import type { AppContext } from "../ui/context";
 import { fmtTime, h } from "../ui/dom";
-import { fetchStyle } from "../ui/editor/basemap";
+import { createMap, fitBoxes } from "../map/createMap";
 import { type ReviewView, tasksApi } from "./api";
 import { trackColour, worstKeyframes } from "./format";
 
@@ -32,11 +31,11 @@ export function renderReviewQueue(main: HTMLElement, _ctx: AppContext): () => vo
   return () => window.clearInterval(poll);
 }
 
-function line(coords: [number, number][], props: Record<string, unknown>): GeoJSON.Feature {
+function line(coords: number[][], props: Record<string, unknown>): GeoJSON.Feature {
   return { type: "Feature", properties: props, geometry: { type: "LineString", coordinates: coords } };
 }
 
-function point(c: [number, number], props: Record<string, unknown>): GeoJSON.Feature {
+function point(c: number[], props: Record<string, unknown>): GeoJSON.Feature {
   return { type: "Feature", properties: props, geometry: { type: "Point", coordinates: c } };
 }
 
@@ -45,7 +44,7 @@ export function reviewGeoJSON(v: ReviewView): GeoJSON.FeatureCollection {
   const feats: GeoJSON.Feature[] = [line(v.reported, { kind: "reported", colour: "#64748b" })];
   v.submissions.forEach((s, i) => {
     if (s.positions) feats.push(line(s.positions, { kind: "track", colour: trackColour(i), who: s.operator ?? "" }));
-    for (const m of s.moves) feats.push(point([m[1], m[2]], { kind: "move", colour: trackColour(i), k: m[0] }));
+    for (const m of s.moves as number[][]) feats.push(point([m[1], m[2]], { kind: "move", colour: trackColour(i), k: m[0] }));
   });
   if (v.consensus) {
     feats.push(line(v.consensus, { kind: "consensus", colour: "#111827" }));
@@ -78,7 +77,11 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
   const side = h("aside", { class: "review-side", "aria-label": "Submissions" });
   main.append(h("section", { class: "review" }, head, h("div", { class: "review-body" }, mapEl, side)));
   let map: maplibregl.Map | null = null;
-  cleanups.push(() => map?.remove());
+  let alive = true;
+  cleanups.push(() => {
+    alive = false;
+    map?.remove();
+  });
 
   async function load() {
     let v: ReviewView;
@@ -140,13 +143,14 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
       (map.getSource("review") as maplibregl.GeoJSONSource | undefined)?.setData(data);
       return;
     }
-    maplibregl.setWorkerUrl(workerUrl);
-    const { style } = await fetchStyle();
-    const m = new maplibregl.Map({ container: mapEl, style, center: v.reported[0] ?? [24.94, 60.17], zoom: 15, attributionControl: false, fadeDuration: 0 });
+    const made = await createMap(mapEl, { center: v.reported[0] as [number, number] | undefined, zoom: 15, navigation: true, compactAttribution: true, exposeAs: "__posefixReviewMap", alive: () => alive });
+    if (!made) return;
+    if (map) {
+      made.map.remove(); // an earlier poll made it meanwhile
+      return;
+    }
+    const m = made.map;
     map = m;
-    (window as unknown as { __posefixReviewMap?: maplibregl.Map }).__posefixReviewMap = m;
-    m.addControl(new maplibregl.NavigationControl({ visualizePitch: false }), "top-left");
-    m.addControl(new maplibregl.AttributionControl({ compact: true }), "bottom-right");
     m.on("load", () => {
       m.addSource("review", { type: "geojson", data });
       m.addLayer({ id: "rv-reported", type: "line", source: "review", filter: ["==", ["get", "kind"], "reported"],
@@ -160,9 +164,7 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
           "circle-stroke-color": "#fff", "circle-stroke-width": 1 } });
       m.addLayer({ id: "rv-moves", type: "circle", source: "review", filter: ["==", ["get", "kind"], "move"],
         paint: { "circle-radius": 6, "circle-color": ["get", "colour"], "circle-stroke-color": "#111", "circle-stroke-width": 1.5 } });
-      const xs = v.reported.map((c) => c[0]);
-      const ys = v.reported.map((c) => c[1]);
-      m.fitBounds([[Math.min(...xs), Math.min(...ys)], [Math.max(...xs), Math.max(...ys)]], { padding: 40, animate: false, maxZoom: 18 });
+      fitBoxes(m, v.reported.map((c) => [c[0], c[1], c[0], c[1]]));
       mapEl.dataset.ready = "true";
     });
   }

@@ -1,6 +1,6 @@
 /** The task pages' routes (#/tasks/...) and their links in the top bar. */
 import type { UserPublic } from "../api/endpoints";
-import type { AppContext } from "../ui/app";
+import type { AppContext } from "../ui/context";
 import { h } from "../ui/dom";
 import { renderTasksAdmin } from "./admin";
 import { renderOperators } from "./operators";

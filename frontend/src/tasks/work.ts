@@ -5,7 +5,7 @@
  */
 import { editsBody } from "../api/convert";
 import { describeError } from "../api/errors";
-import type { AppContext } from "../ui/app";
+import type { AppContext } from "../ui/context";
 import { fmtTime, h } from "../ui/dom";
 import { renderEditor } from "../ui/editor/view";
 import { type OperatorStats, tasksApi } from "./api";
@@ -41,8 +41,8 @@ export function renderWork(main: HTMLElement, ctx: AppContext): void {
       }
       out.replaceChildren(h("div", {},
         h("p", { role: "status", "data-testid": "next-message" }, r.message),
-        r.ineligible.length
-          ? h("ul", { "data-testid": "ineligible" }, ...r.ineligible.map((t) =>
+        r.ineligible?.length
+          ? h("ul", { "data-testid": "ineligible" }, ...(r.ineligible as { title: string; reasons: string[] }[]).map((t) =>
               h("li", {}, h("strong", {}, t.title), ": ", t.reasons.join("; "))))
           : null,
       ));

@@ -1,7 +1,7 @@
 /** Admin: upload a run (with progress) and list runs with their status. */
 import { api, uploadRun } from "../api/endpoints";
 import { describeError } from "../api/errors";
-import type { AppContext } from "./app";
+import type { AppContext } from "./context";
 import { fmtTime, h } from "./dom";
 
 export function renderAdminRuns(main: HTMLElement, _ctx: AppContext): () => void {

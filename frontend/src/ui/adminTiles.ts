@@ -2,7 +2,7 @@
 import type { Schemas } from "../api/client";
 import { api } from "../api/endpoints";
 import { describeError } from "../api/errors";
-import type { AppContext } from "./app";
+import type { AppContext } from "./context";
 import { h } from "./dom";
 
 export function renderAdminTiles(main: HTMLElement, _ctx: AppContext): void {

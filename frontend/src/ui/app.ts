@@ -3,7 +3,8 @@
  * the top bar, and the signed-in user. Pages render into the main area and return a
  * cleanup function.
  */
-import { api, type UserPublic } from "../api/endpoints";
+import { api } from "../api/endpoints";
+import type { AppContext } from "./context";
 import { ApiError } from "../api/errors";
 import { renderAdminRuns } from "./adminRuns";
 import { renderAdminTiles } from "./adminTiles";
@@ -14,11 +15,6 @@ import { renderLogin } from "./login";
 import { renderTasksRoute, tasksNav } from "../tasks/routes";
 import { renderFloorsRoute } from "../maps/floorPage";
 
-export interface AppContext {
-  user: UserPublic | null;
-  setUser(u: UserPublic | null): void;
-  navigate(hash: string): void;
-}
 
 type Cleanup = (() => void) | void;
 

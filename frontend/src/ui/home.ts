@@ -1,7 +1,7 @@
 /** Operator home: the runs they may edit. Tasks (assignments) will be listed here too. */
 import { api } from "../api/endpoints";
 import { describeError } from "../api/errors";
-import type { AppContext } from "./app";
+import type { AppContext } from "./context";
 import { fmtTime, h } from "./dom";
 
 export function renderHome(main: HTMLElement, ctx: AppContext): void {

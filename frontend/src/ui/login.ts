@@ -1,6 +1,6 @@
 import { api } from "../api/endpoints";
 import { describeError } from "../api/errors";
-import type { AppContext } from "./app";
+import type { AppContext } from "./context";
 import { h } from "./dom";
 
 export function renderLogin(main: HTMLElement, ctx: AppContext): void {

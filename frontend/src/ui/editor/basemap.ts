@@ -4,7 +4,6 @@
  * Attribution comes from each source's `attribution` (MapLibre's attribution control).
  */
 import type { Map as MlMap, StyleSpecification } from "maplibre-gl";
-import { api } from "../../api/endpoints";
 import { h } from "../dom";
 
 export interface BasemapOption {
@@ -12,24 +11,6 @@ export interface BasemapOption {
   label: string;
   kind: string;
   layers: string[];
-}
-
-/** A plain style to fall back on when the server has no basemap (the editor still works). */
-export const BLANK_STYLE: StyleSpecification = {
-  version: 8,
-  sources: {},
-  layers: [{ id: "background", type: "background", paint: { "background-color": "#eef2f5" } }],
-};
-
-/** Fetch the style; null (and the reason) when it cannot be had. */
-export async function fetchStyle(): Promise<{ style: StyleSpecification; note: string | null }> {
-  try {
-    const res = await fetch(api.styleUrl(), { credentials: "same-origin" });
-    if (!res.ok) return { style: BLANK_STYLE, note: `No basemap (style.json: ${res.status}).` };
-    return { style: (await res.json()) as StyleSpecification, note: null };
-  } catch (err) {
-    return { style: BLANK_STYLE, note: `No basemap: ${(err as Error).message}` };
-  }
 }
 
 /**

@@ -49,7 +49,7 @@ export class EditorController {
    */
   watch(): void {
     if (typeof EventSource === "undefined" || this.events) return;
-    this.events = new EventSource(`/api/v1/events?run_id=${encodeURIComponent(this.runId)}&max_s=3600`, { withCredentials: true });
+    this.events = new EventSource(api.runEventsUrl(this.runId), { withCredentials: true });
     this.events.addEventListener("revision.ready", (ev) => {
       try {
         const d = JSON.parse((ev as MessageEvent).data) as { run_id: number; revision: number };

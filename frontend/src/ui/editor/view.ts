@@ -1,54 +1,68 @@
 /**
- * The correction view: wires the store, the controller, the map adapter, the modes and the
- * DOM panels together. State flows one way: input -> modes/controller -> store -> adapter/panels.
+ * The correction view: wires the store, the controller, the map adapter, the modes, the
+ * keyboard behaviour and the DOM panels together. State flows one way:
+ * input -> modes/controller -> store -> adapter/panels.
  */
-import * as maplibregl from "maplibre-gl";
-// MapLibre's worker is its own module file; hand its bundled URL to MapLibre (works offline).
-import workerUrl from "maplibre-gl/dist/maplibre-gl-worker.mjs?url";
-import type { Map as MlMap, Popup } from "maplibre-gl";
+import type { Map as MlMap } from "maplibre-gl";
 import { dismissRefusal, select, selectNextAdjustable, selectStep, toggleGhost } from "../../actions/editor";
 import { actionAcceptAsIs, actionMarkDeleted, actionReset, actionRestore, actionUnmove } from "../../actions/edits";
 import { api } from "../../api/endpoints";
+import { type EditorCommand, installEditorKeys } from "../../behaviors/keyboard";
 import { MapAdapter } from "../../map/adapter";
+import { createMap } from "../../map/createMap";
 import { bounds } from "../../map/features";
+import { SuggestionsPanel } from "../../maps/suggestPanel";
 import { ModeManager } from "../../modes/manager";
 import { type EditorState, correctionMagnitudes, currentEdits, displayPositions, editCount, keyframeStatuses } from "../../state/editor";
-import type { AppContext } from "../app";
-import { clear, h } from "../dom";
-import { basemapOptions, basemapSwitcher, fetchStyle, initialBasemap, showBasemap } from "./basemap";
+import type { AppContext } from "../context";
+import { h } from "../dom";
+import { basemapOptions, basemapSwitcher, initialBasemap, showBasemap } from "./basemap";
 import { CorrectionChart } from "./chart";
+import { ConflictPanel } from "./conflict";
 import { EditorController } from "./controller";
 import { ImagesPanel } from "./images";
-import { driftInfo, legend, selectionInfo, statusBar, toolbarState } from "./panels";
-import { SuggestionsPanel } from "../../maps/suggestPanel";
+import { driftInfo, legend, selectionInfo, statusBar } from "./panels";
+import { RefusalView } from "./refusal";
+import { EditorToolbar } from "./toolbar";
+
+function keysHelp(): HTMLElement {
+  return h("ul", { class: "keys" },
+    h("li", {}, h("kbd", {}, "."), " / ", h("kbd", {}, ","), " or ", h("kbd", {}, "→"), " / ", h("kbd", {}, "←"), " next / previous keyframe"),
+    h("li", {}, h("kbd", {}, "A"), " next adjustable keyframe"),
+    h("li", {}, h("kbd", {}, "Ctrl+Z"), " undo, ", h("kbd", {}, "Ctrl+Shift+Z"), " redo"),
+    h("li", {}, h("kbd", {}, "Del"), " delete / restore, ", h("kbd", {}, "R"), " delete a range"),
+    h("li", {}, h("kbd", {}, "I"), " images, ", h("kbd", {}, "G"), " ghost, ", h("kbd", {}, "F"), " fit, ", h("kbd", {}, "Esc"), " cancel"),
+  );
+}
 
 export function renderEditor(main: HTMLElement, _app: AppContext, runId: string, onController?: (ctl: EditorController) => void): () => void {
   const ctl = new EditorController(runId);
   onController?.(ctl);
   const store = ctl.store;
   const cleanups: (() => void)[] = [() => ctl.dispose()];
+  let map: MlMap | null = null;
+  let adapter: MapAdapter | null = null;
+  let modes: ModeManager | null = null;
+  let fitted = false;
+  let closed = false;
 
   // ---- layout
-  const btn = (label: string, onclick: () => void, attrs: Record<string, unknown> = {}) =>
-    h("button", { type: "button", onclick, ...attrs }, label);
-  const title = h("h1", { class: "run-title" }, "Loading run…");
-  const undoBtn = btn("↶ Undo", () => ctl.undo(), { "data-testid": "undo" });
-  const redoBtn = btn("↷ Redo", () => ctl.redo(), { "data-testid": "redo" });
-  const deleteBtn = btn("Delete", () => toggleDeleteSelected(), { "data-testid": "delete", title: "Mark the selected keyframe for deletion (Delete)" });
-  const rangeBtn = btn("Delete range…", () => modes?.switchTo(store.get().mode === "select-range" ? "browse" : "select-range"), { "data-testid": "delete-range", title: "Click the first and last keyframe of the range (R)" });
-  const acceptBtn = btn("Accept as is", () => ctl.perform(actionAcceptAsIs()), { "data-testid": "accept", title: "The run needs no correction" });
-  const resetBtn = btn("Reset", () => ctl.perform(actionReset()), { "data-testid": "reset", title: "Drop all unsaved edits (undoable)" });
-  const ghostBtn = btn("Ghost", () => store.update(toggleGhost), { "data-testid": "ghost", "aria-pressed": "true", title: "Show the loaded revision under the corrected track (G)" });
-  const imagesBtn = btn("Images", () => openImages(store.get().selected), { "data-testid": "images-button", title: "Images of the selected keyframe (I)" });
-  const fitBtn = btn("Fit", () => fit(), { title: "Zoom to the whole run (F)" });
-  const comment = h("input", { id: "submit-comment", placeholder: "Comment (optional)", "aria-label": "Comment for this submission" });
-  const submitBtn = btn("Submit", () => void ctl.submit(comment.value), { class: "primary", "data-testid": "submit" });
-  const suggest = new SuggestionsPanel(ctl, (t) => notices.replaceChildren(h("p", {}, t)));
+  const notices = h("div", { class: "notices", role: "status", "aria-live": "polite", "data-testid": "notices" });
+  const notify = (t: string) => notices.replaceChildren(h("p", {}, t));
+  const suggest = new SuggestionsPanel(ctl, notify);
   cleanups.push(() => suggest.dispose());
-  const toolbar = h("div", { class: "toolbar", role: "toolbar", "aria-label": "Editing tools" },
-    title, undoBtn, redoBtn, h("span", { class: "sep" }), deleteBtn, rangeBtn, acceptBtn, resetBtn, h("span", { class: "sep" }), ghostBtn, imagesBtn, fitBtn,
-    h("span", { class: "sep" }), ...suggest.elements,
-    h("span", { class: "grow" }), comment, submitBtn);
+  const toolbar = new EditorToolbar({
+    undo: () => ctl.undo(),
+    redo: () => ctl.redo(),
+    toggleDelete: () => toggleDeleteSelected(),
+    toggleRange: () => modes?.switchTo(store.get().mode === "select-range" ? "browse" : "select-range"),
+    acceptAsIs: () => ctl.perform(actionAcceptAsIs()),
+    reset: () => ctl.perform(actionReset()),
+    toggleGhost: () => store.update(toggleGhost),
+    images: () => openImages(store.get().selected),
+    fit: () => fit(),
+    submit: (comment) => void ctl.submit(comment),
+  }, suggest.elements);
 
   const mapEl = h("div", { class: "map", id: "map", "aria-label": "Map of the run; drag keyframes to correct them", role: "application", tabindex: "0" });
   const legendBox = h("div", { class: "legend-box" });
@@ -59,21 +73,12 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   const selBox = h("div");
   const images = new ImagesPanel();
   const driftBox = h("div");
-  const notices = h("div", { class: "notices", role: "status", "aria-live": "polite", "data-testid": "notices" });
   const errorBox = h("div", { class: "error-box", role: "alert", "data-testid": "error", hidden: true });
-  const newerBox = h("div", { class: "newer-box", role: "status", "data-testid": "newer", hidden: true });
   const side = h("aside", { class: "side", "aria-label": "Keyframe details" },
     h("h2", {}, "Selected keyframe"), selBox,
     images.el,
     h("h2", {}, "Drift"), driftBox,
-    h("h2", {}, "Keys"),
-    h("ul", { class: "keys" },
-      h("li", {}, h("kbd", {}, "."), " / ", h("kbd", {}, ","), " or ", h("kbd", {}, "→"), " / ", h("kbd", {}, "←"), " next / previous keyframe"),
-      h("li", {}, h("kbd", {}, "A"), " next adjustable keyframe"),
-      h("li", {}, h("kbd", {}, "Ctrl+Z"), " undo, ", h("kbd", {}, "Ctrl+Shift+Z"), " redo"),
-      h("li", {}, h("kbd", {}, "Del"), " delete / restore, ", h("kbd", {}, "R"), " delete a range"),
-      h("li", {}, h("kbd", {}, "I"), " images, ", h("kbd", {}, "G"), " ghost, ", h("kbd", {}, "F"), " fit, ", h("kbd", {}, "Esc"), " cancel"),
-    ),
+    h("h2", {}, "Keys"), keysHelp(),
     notices,
   );
   const chart = new CorrectionChart((i) => {
@@ -83,20 +88,13 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   const statusEl = h("div", { class: "statusbar", role: "status", "data-testid": "statusbar" });
   const submitMsg = h("span", { class: "submit-msg", "data-testid": "submit-msg" });
   const bottom = h("div", { class: "bottom" }, h("div", { class: "chart-wrap" }, h("span", { class: "chart-title" }, "Correction (m) along the run"), chart.canvas), h("div", { class: "status-row" }, statusEl, submitMsg));
-  const conflict = h("div", { class: "conflict", role: "alertdialog", "aria-modal": "true", "aria-labelledby": "conflict-h", "data-testid": "conflict", hidden: true });
-  const refusalLive = h("div", { class: "sr-only", role: "alert", "data-testid": "refusal-live" });
-  const root = h("div", { class: "editor" }, toolbar, errorBox, newerBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict, refusalLive);
+  const conflict = new ConflictPanel({ reapply: () => void ctl.reloadAndReapply(), discard: () => void ctl.reloadDiscarding() });
+  const refusal = new RefusalView(() => store.update(dismissRefusal));
+  const root = h("div", { class: "editor" }, toolbar.el, errorBox, conflict.newerBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict.dialog, refusal.live);
   main.append(root);
-  ctl.onNotice = (t) => notices.replaceChildren(h("p", {}, t));
+  ctl.onNotice = notify;
 
-  // ---- map
-  let map: MlMap | null = null;
-  let adapter: MapAdapter | null = null;
-  let modes: ModeManager | null = null;
-  let popup: Popup | null = null;
-  let fitted = false;
-  let closed = false;
-
+  // ---- commands
   function fit(animate = true) {
     const b = bounds(store.get());
     if (map && b) map.fitBounds([[b[0], b[1]], [b[2], b[3]]], { padding: 60, animate, maxZoom: 18 });
@@ -112,7 +110,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   function openImages(i: number | null) {
     const s = store.get();
     if (i === null || !s.doc) {
-      notices.replaceChildren(h("p", {}, "Select a keyframe first to see its images."));
+      notify("Select a keyframe first to see its images.");
       return;
     }
     images.t0_s = s.doc.keyframes[0]?.t_s ?? 0;
@@ -123,19 +121,37 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
     if (s.selected === null || !s.doc) return;
     ctl.perform(currentEdits(s).deleted.has(s.selected) ? actionRestore(s.selected) : actionMarkDeleted(s.selected));
   }
+  function runCommand(c: EditorCommand) {
+    const before = store.get();
+    switch (c) {
+      case "undo": ctl.undo(); break;
+      case "redo": ctl.redo(); break;
+      case "next": store.update((x) => selectStep(x, +1)); break;
+      case "previous": store.update((x) => selectStep(x, -1)); break;
+      case "next-adjustable": store.update(selectNextAdjustable); break;
+      case "toggle-delete": toggleDeleteSelected(); break;
+      case "delete-range": modes?.switchTo("select-range"); break;
+      case "images": openImages(before.selected); break;
+      case "ghost": store.update(toggleGhost); break;
+      case "fit": fit(); break;
+      case "unmove": if (before.selected !== null) ctl.perform(actionUnmove(before.selected)); break;
+      case "escape":
+        store.update((x) => dismissRefusal(select(x, null)));
+        images.close();
+        break;
+    }
+    const sel = store.get().selected;
+    if (sel !== null && sel !== before.selected) panTo(sel);
+  }
+  cleanups.push(installEditorKeys(window, () => store.get(), runCommand));
 
+  // ---- map
   (async () => {
-    maplibregl.setWorkerUrl(workerUrl);
-    const { style, note } = await fetchStyle();
-    if (closed) return; // left the page while the style was loading
-    if (note) mapNote.textContent = note;
-    const m = new maplibregl.Map({ container: mapEl, style, center: [24.94, 60.17], zoom: 12, attributionControl: false, dragRotate: true, fadeDuration: 0 });
+    const made = await createMap(mapEl, { navigation: true, scale: true, exposeAs: "__posefixMap", alive: () => !closed });
+    if (!made) return;
+    const { map: m, style, note } = made;
     map = m;
-    // Exposed for the end-to-end tests and the drag benchmark (they project keyframes to pixels).
-    (window as unknown as { __posefixMap?: MlMap }).__posefixMap = m;
-    m.addControl(new maplibregl.NavigationControl({ visualizePitch: false }), "top-left");
-    m.addControl(new maplibregl.ScaleControl({ unit: "metric" }), "bottom-right");
-    m.addControl(new maplibregl.AttributionControl({ compact: false }), "bottom-right");
+    if (note) mapNote.textContent = note;
     const opts = basemapOptions(style);
     let current = initialBasemap(style, opts);
     basemapBox.replaceChildren(basemapSwitcher(opts, current, (src) => {
@@ -166,32 +182,19 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   cleanups.push(() => {
     closed = true;
     modes?.destroy();
-    popup?.remove();
+    refusal.remove();
     map?.remove();
   });
 
   // ---- rendering
   let chartDeps: unknown[] = [];
   function render(s: EditorState, prev: EditorState | null) {
-    if (s.doc) title.textContent = `${s.doc.name} · rev ${s.doc.revision}`;
     if (adapter) adapter.render(s);
     if (map && s.doc && !fitted && mapEl.dataset.ready === "true") {
       fitted = true;
       fit(false);
     }
-    const tb = toolbarState(s);
-    undoBtn.disabled = !tb.undo.enabled;
-    undoBtn.title = tb.undo.title;
-    undoBtn.setAttribute("aria-label", tb.undo.title);
-    redoBtn.disabled = !tb.redo.enabled;
-    redoBtn.title = tb.redo.title;
-    redoBtn.setAttribute("aria-label", tb.redo.title);
-    submitBtn.disabled = !tb.submitEnabled;
-    deleteBtn.disabled = !tb.hasSelection;
-    imagesBtn.disabled = !tb.hasSelection;
-    ghostBtn.setAttribute("aria-pressed", String(s.showGhost));
-    rangeBtn.setAttribute("aria-pressed", String(s.mode === "select-range"));
-    rangeBtn.textContent = s.mode === "select-range" ? (s.rangeAnchor === null ? "Click first keyframe…" : "Click last keyframe…") : "Delete range…";
+    toolbar.render(s);
     statusEl.textContent = statusBar(s);
     root.dataset.revision = String(s.doc?.revision ?? "");
     root.dataset.unsaved = String(editCount(currentEdits(s)));
@@ -202,17 +205,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
     submitMsg.className = `submit-msg ${sub.kind === "error" ? "error" : ""}`;
     errorBox.hidden = !s.error;
     errorBox.textContent = s.error ?? "";
-    if (!prev || prev.newer !== s.newer) {
-      newerBox.hidden = s.newer === null;
-      newerBox.replaceChildren(
-        ...(s.newer === null
-          ? []
-          : [
-              `Revision ${s.newer} was saved by someone else while you edit revision ${s.doc?.revision}; submitting now would conflict. `,
-              btn("Reload and re-apply my edits", () => void ctl.reloadAndReapply(), { "data-testid": "newer-reapply" }),
-            ]),
-      );
-    }
+    conflict.render(s, prev);
 
     const heavy = !prev || prev.doc !== s.doc || currentEdits(prev) !== currentEdits(s) || prev.preview !== s.preview || prev.showGhost !== s.showGhost;
     if (heavy) {
@@ -227,80 +220,9 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
       chart.set({ now: correctionMagnitudes(s), before: s.doc ? s.doc.keyframes.map((k) => k.correction_m) : [], selected: s.selected, deleted: st.map((x) => x === "deleted") });
     }
     if (prev?.selected !== s.selected && images.isOpen && s.selected !== null && s.doc) openImages(s.selected);
-    if (!prev || prev.refusal !== s.refusal) showRefusal(s);
-    if (!prev || prev.conflict !== s.conflict) showConflict(s);
+    if (!prev || prev.refusal !== s.refusal) refusal.show(s, map);
   }
-
-  function showRefusal(s: EditorState) {
-    popup?.remove();
-    popup = null;
-    if (!s.refusal) {
-      refusalLive.textContent = "";
-      return;
-    }
-    const r = s.refusal;
-    refusalLive.textContent = `Refused: ${r.message}`;
-    if (!map) return;
-    const body = h("div", { class: "refusal", "data-testid": "refusal", "data-reason": r.reason },
-      h("strong", {}, refusalTitle(r.reason)), h("p", {}, r.message));
-    popup = new maplibregl.Popup({ closeButton: true, closeOnClick: true, className: "refusal-popup", maxWidth: "280px" })
-      .setLngLat(r.at as [number, number])
-      .setDOMContent(body)
-      .addTo(map);
-    popup.on("close", () => store.update(dismissRefusal));
-  }
-
-  function showConflict(s: EditorState) {
-    conflict.hidden = !s.conflict;
-    clear(conflict);
-    if (!s.conflict) return;
-    const n = editCount(currentEdits(s));
-    const reapply = btn(`Reload and re-apply my ${n} edit${n === 1 ? "" : "s"}`, () => void ctl.reloadAndReapply(), { class: "primary", "data-testid": "conflict-reapply" });
-    conflict.append(h("div", { class: "card" },
-      h("h2", { id: "conflict-h" }, "This run has changed since you opened it"),
-      h("p", {}, `Someone saved revision ${s.conflict.currentRevision ?? "(newer)"} while you were editing revision ${s.conflict.baseRevision}. Your ${n} unsaved edits are kept in this browser.`),
-      h("p", {}, "Reload the run and re-apply your edits on top of the new revision (edits that no longer pass the rules are listed), or discard them."),
-      h("div", { class: "row" }, reapply, btn("Discard my edits and reload", () => void ctl.reloadDiscarding(), { "data-testid": "conflict-discard" })),
-    ));
-    reapply.focus();
-  }
-
   cleanups.push(store.subscribe((next, prev) => render(next, prev)));
-
-  // ---- keyboard
-  const onKey = (e: KeyboardEvent) => {
-    const t = e.target as HTMLElement | null;
-    if (t && (t.tagName === "INPUT" || t.tagName === "TEXTAREA" || t.tagName === "SELECT" || t.isContentEditable)) return;
-    const s = store.get();
-    if (s.conflict || s.mode === "drag") return;
-    const mod = e.ctrlKey || e.metaKey;
-    const key = e.key;
-    let handled = true;
-    if (mod && (key === "z" || key === "Z")) e.shiftKey ? ctl.redo() : ctl.undo();
-    else if (mod && (key === "y" || key === "Y")) ctl.redo();
-    else if (mod) handled = false;
-    else if (key === "." || key === "ArrowRight" || key === "n") store.update((x) => selectStep(x, +1));
-    else if (key === "," || key === "ArrowLeft" || key === "p") store.update((x) => selectStep(x, -1));
-    else if (key === "a" || key === "A") store.update(selectNextAdjustable);
-    else if (key === "Delete" || key === "Backspace") toggleDeleteSelected();
-    else if (key === "r" || key === "R") modes?.switchTo("select-range");
-    else if (key === "i" || key === "I") openImages(s.selected);
-    else if (key === "g" || key === "G") store.update(toggleGhost);
-    else if (key === "f" || key === "F") fit();
-    else if (key === "u" || key === "U") s.selected !== null && ctl.perform(actionUnmove(s.selected));
-    else if (key === "Escape") {
-      store.update((x) => dismissRefusal(select(x, null)));
-      images.close();
-    } else handled = false;
-    if (handled) {
-      e.preventDefault();
-      e.stopPropagation();
-      const sel = store.get().selected;
-      if (sel !== null && sel !== s.selected) panTo(sel);
-    }
-  };
-  window.addEventListener("keydown", onKey, true);
-  cleanups.push(() => window.removeEventListener("keydown", onKey, true));
 
   ctl.load().then(
     () => {
@@ -317,17 +239,4 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   );
   render(store.get(), null);
   return () => cleanups.reverse().forEach((f) => f());
-}
-
-function refusalTitle(reason: string): string {
-  switch (reason) {
-    case "too_far": return "Too far from the reported position";
-    case "locked": return "Keyframe is locked";
-    case "not_adjustable": return "Keyframe is not adjustable";
-    case "order_reversed": return "Poses would run backwards";
-    case "deleted": return "Keyframe is marked for deletion";
-    case "out_of_range": return "No such keyframe";
-    case "duplicate": return "Moved twice";
-    default: return "Edit refused";
-  }
 }

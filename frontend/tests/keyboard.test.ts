@@ -1,0 +1,27 @@
+import { describe, expect, it } from "vitest";
+import { editorCommand } from "../src/behaviors/keyboard";
+
+const key = (k: string, mods: Partial<{ ctrlKey: boolean; metaKey: boolean; shiftKey: boolean }> = {}) => ({ key: k, ctrlKey: false, metaKey: false, shiftKey: false, ...mods });
+const browse = { conflict: null, mode: "browse" as const };
+
+describe("editorCommand", () => {
+  it("maps undo, redo and their modifiers", () => {
+    expect(editorCommand(key("z", { ctrlKey: true }), browse)).toBe("undo");
+    expect(editorCommand(key("Z", { ctrlKey: true, shiftKey: true }), browse)).toBe("redo");
+    expect(editorCommand(key("y", { metaKey: true }), browse)).toBe("redo");
+    expect(editorCommand(key("s", { ctrlKey: true }), browse)).toBeNull();
+  });
+
+  it("maps the single keys", () => {
+    expect(editorCommand(key("."), browse)).toBe("next");
+    expect(editorCommand(key("ArrowLeft"), browse)).toBe("previous");
+    expect(editorCommand(key("Delete"), browse)).toBe("toggle-delete");
+    expect(editorCommand(key("Escape"), browse)).toBe("escape");
+    expect(editorCommand(key("q"), browse)).toBeNull();
+  });
+
+  it("does nothing during a conflict or a drag", () => {
+    expect(editorCommand(key("z", { ctrlKey: true }), { conflict: { baseRevision: 1, currentRevision: 2 }, mode: "browse" })).toBeNull();
+    expect(editorCommand(key("."), { conflict: null, mode: "drag" })).toBeNull();
+  });
+});
