@@ -265,7 +265,7 @@ class TestConflict:
             dialog = a.get_by_test_id("conflict")
             dialog.wait_for(timeout=15_000)
             text = dialog.inner_text()
-            assert "changed since you opened it" in text and "revision 2" in text and "1 unsaved edits" in text
+            assert "changed since you opened it" in text and "revision 2" in text and "1 unsaved edit is kept" in text
             shot(a, "conflict", docs=True)
             a.get_by_test_id("conflict-reapply").click()
             wait_revision(a, 2)

@@ -44,7 +44,7 @@ export class ConflictPanel {
     const reapply = button(`Reload and re-apply my ${n} ${edits}`, this.a.reapply, { class: "primary", "data-testid": "conflict-reapply" });
     box.append(h("div", { class: "card" },
       h("h2", { id: "conflict-h" }, "This run has changed since you opened it"),
-      h("p", {}, `Someone saved revision ${s.conflict.currentRevision ?? "(newer)"} while you were editing revision ${s.conflict.baseRevision}. Your ${n} unsaved ${edits} are kept in this browser.`),
+      h("p", {}, `Someone saved revision ${s.conflict.currentRevision ?? "(newer)"} while you were editing revision ${s.conflict.baseRevision}. Your ${n} unsaved ${edits} ${n === 1 ? "is" : "are"} kept in this browser.`),
       h("p", {}, "Reload the run and re-apply your edits on top of the new revision (edits that no longer pass the rules are listed), or discard them."),
       h("div", { class: "row" }, reapply, button("Discard my edits and reload", this.a.discard, { "data-testid": "conflict-discard" })),
     ));
