@@ -10,7 +10,6 @@ from typing import Annotated, Any
 
 import anyio
 from fastapi import APIRouter, Query, Request
-from sqlalchemy import select
 from sse_starlette.sse import EventSourceResponse
 
 from posefix.db import Database, utcnow
@@ -19,8 +18,9 @@ from posefix.errors import NotFound, responses
 from posefix.jobs import repository as repo
 from posefix.jobs.models import Job, JobStatus
 from posefix.jobs.schemas import JobPublic
-from posefix.runs.access import visible_clause, visible_run_ids
-from posefix.runs.models import Revision, Run
+from posefix.runs import repository as runs_repo
+from posefix.runs.access import is_visible, visible_run_ids
+from posefix.runs.models import Run
 from posefix.users.models import Role
 
 router = APIRouter(tags=["jobs"])
@@ -33,7 +33,7 @@ def _job_visible(session: Any, principal: Any, settings: Any, job: Job) -> bool:
         return True
     if job.run_id is None:
         return False
-    return session.scalar(select(Run.id).where(Run.id == job.run_id, visible_clause(principal, settings))) is not None
+    return is_visible(session, principal, settings, job.run_id)
 
 
 @router.get("/jobs/{job_id}", response_model=JobPublic, responses=responses(401, 404))
@@ -51,8 +51,7 @@ def _poll(db: Database, principal: Any, settings: Any, since: dt.datetime, last_
         if run_id is not None:
             runs_q = runs_q.where(Run.id == run_id)
         jobs = repo.changed_since(s, since, job_ids, runs_q if principal.role != Role.admin or run_id else None, principal.user_id)
-        rev_stmt = select(Revision).where(Revision.id > last_rev_id, Revision.run_id.in_(runs_q)).order_by(Revision.id).limit(200)
-        revs = list(s.scalars(rev_stmt))
+        revs = runs_repo.revisions_after(s, last_rev_id, runs_q)
         job_events = [JobPublic.model_validate(j).model_dump(mode="json") for j in jobs]
         rev_events = [
             {"run_id": r.run_id, "revision": r.number, "kind": r.kind, "batch_id": r.batch_id,
@@ -83,8 +82,7 @@ async def events(
 
     def start_rev_id() -> int:
         with db.transaction(write=False) as s:
-            stmt = select(Revision.id).where(Revision.created_at <= since).order_by(Revision.id.desc()).limit(1)
-            return int(s.scalar(stmt) or 0)
+            return runs_repo.last_revision_id_at(s, since)
 
     last_rev_id = await anyio.to_thread.run_sync(start_rev_id)
 

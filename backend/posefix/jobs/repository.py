@@ -70,6 +70,13 @@ _CLAIM_SQLITE = text(
 )
 
 
+def live_for_run(session: Session, kind: str, run_id: int, limit: int = 20) -> list[Job]:
+    """The newest jobs of ``kind`` for a run that are not dead, newest first."""
+    stmt = (select(Job).where(Job.kind == kind, Job.run_id == run_id, Job.status != JobStatus.dead)
+            .order_by(Job.id.desc()).limit(limit))
+    return list(session.scalars(stmt))
+
+
 def _ts(session: Session, value: dt.datetime) -> Any:
     # Raw SQL bypasses the UTCDateTime type: SQLite compares text, so bind the same
     # format SQLAlchemy stores ("YYYY-MM-DD HH:MM:SS.ffffff"); PostgreSQL takes datetimes.

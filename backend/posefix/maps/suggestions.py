@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from posefix.config import Settings
@@ -25,7 +24,6 @@ from posefix.core.rules import EditRules, adjustable_mask
 from posefix.db import on_commit
 from posefix.errors import NotFound, Unprocessable
 from posefix.jobs import repository as jobs
-from posefix.jobs.models import Job, JobStatus
 from posefix.runs import storage
 from posefix.runs.models import Run
 from posefix.users.service import Principal
@@ -93,11 +91,7 @@ def request_suggestions(session: Session, settings: Settings, principal: Princip
     ready(session, run, number)
     osm_path(settings)  # 404 now rather than a dead job
     payload = {"run_id": run.id, "revision": number, "cell_m": cell_m}
-    recent = session.scalars(
-        select(Job).where(Job.kind == SUGGEST_JOB, Job.run_id == run.id, Job.status != JobStatus.dead)
-        .order_by(Job.id.desc()).limit(20)
-    )
-    for job in recent:
+    for job in jobs.live_for_run(session, SUGGEST_JOB, run.id):
         if job.payload == payload:
             return {"job_id": job.id, "status": job.status, "run_id": run.id, "revision": number}
     job = jobs.enqueue(session, SUGGEST_JOB, payload, run_id=run.id, created_by=principal.user_id, max_attempts=2)

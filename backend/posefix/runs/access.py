@@ -54,6 +54,10 @@ def visible_run_ids(principal: Principal, settings: Settings) -> Select:
     return select(Run.id).where(visible_clause(principal, settings))
 
 
+def is_visible(session: Session, principal: Principal, settings: Settings, run_id: int) -> bool:
+    return session.scalar(visible_run_ids(principal, settings).where(Run.id == run_id)) is not None
+
+
 def get_visible_run(
     session: Session, principal: Principal, settings: Settings, run_id: int, *, include_deleted: bool = False
 ) -> Run:

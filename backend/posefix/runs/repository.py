@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as dt
 from typing import Any
 
-from sqlalchemy import ColumnElement, func, insert, select, update
+from sqlalchemy import ColumnElement, Select, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from posefix.runs.models import Keyframe, Revision, Run, RunEvent, RunImage, RunStatus
@@ -75,6 +75,18 @@ def revision(session: Session, run_id: int, number: int) -> Revision | None:
 
 def revisions(session: Session, run_id: int) -> list[Revision]:
     return list(session.scalars(select(Revision).where(Revision.run_id == run_id).order_by(Revision.number)))
+
+
+def revisions_after(session: Session, after_id: int, run_ids: Select, limit: int = 200) -> list[Revision]:
+    """Revisions with an id above ``after_id`` of the runs ``run_ids`` selects, oldest first."""
+    stmt = select(Revision).where(Revision.id > after_id, Revision.run_id.in_(run_ids)).order_by(Revision.id).limit(limit)
+    return list(session.scalars(stmt))
+
+
+def last_revision_id_at(session: Session, when: dt.datetime) -> int:
+    """The id of the newest revision created at or before ``when`` (0 when none)."""
+    stmt = select(Revision.id).where(Revision.created_at <= when).order_by(Revision.id.desc()).limit(1)
+    return int(session.scalar(stmt) or 0)
 
 
 def images(session: Session, run_id: int) -> list[RunImage]:
