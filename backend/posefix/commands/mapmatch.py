@@ -62,18 +62,14 @@ def build(
 ) -> None:
     """Build a floor graph (one vertex per walkable cell) and save the model."""
     with user_errors():
-        from tqdm import tqdm
-
-        from posefix.mapmatch.floorplan import load_ilc_floor
-        from posefix.mapmatch.graph import build_graph
-        from posefix.mapmatch.model import Model, save_model
+        from posefix.mapmatch.api import build_model_report
+        from posefix.mapmatch.model import save_model
 
         t0 = time.perf_counter()
-        with tqdm(total=2, desc="building", unit="stage") as bar:
-            raster = load_ilc_floor(floor, res_m=raster_m, shops_walkable=shops_walkable)
-            bar.update(1)
-            model = Model(graph=build_graph(raster, cell_m=cell_m, reach_m=reach_m, min_component_m2=min_component_m2))
-            bar.update(1)
+        model, report = build_model_report(floor, cell_m=cell_m, reach_m=reach_m, raster_m=raster_m,
+                                           min_component_m2=min_component_m2, shops_walkable=shops_walkable)
+        for line in report.lines():
+            typer.echo(line)
         dt = time.perf_counter() - t0
         with _atomic(output, ".npz") as tmp:
             size = save_model(model, tmp)

@@ -20,7 +20,8 @@ from typing import Callable
 import numpy as np
 
 from posefix.mapmatch.evaluate import evaluate_track
-from posefix.mapmatch.floorplan import FloorFormatError, GeoRef, load_ilc_floor, raster_from_polygons
+from posefix.mapmatch.floorplan import (FloorFormatError, FloorReport, GeoRef, load_ilc_floor, raster_from_polygons,
+                                        read_ilc_floor)
 from posefix.mapmatch.graph import build_graph
 from posefix.mapmatch.model import Model, load_model, save_model
 from posefix.mapmatch.sensors import (Steps, Walk, WalkFormatError, detect_steps, heading_from_rotation_vector,
@@ -30,10 +31,10 @@ from posefix.mapmatch.tracker import Tracker, TrackResult, track_walk
 from posefix.mapmatch.viterbi import GaussianSummary, gaussian_summary
 
 __all__ = [
-    "FloorFormatError", "GaussianSummary", "GeoRef", "Model", "TrackResult", "Tracker", "Walk", "WalkFormatError",
-    "build_model", "build_polygon_model", "current_summary", "evaluate_track", "load_ilc_floor", "load_model",
-    "read_track_csv", "read_walk", "save_model", "settled_steps", "suggest_for_run", "Suggestions", "track_walk", "track_walk_file", "train_model",
-    "write_track_csv",
+    "FloorFormatError", "FloorReport", "GaussianSummary", "GeoRef", "Model", "TrackResult", "Tracker", "Walk",
+    "WalkFormatError", "build_model", "build_model_report", "build_polygon_model", "current_summary", "evaluate_track",
+    "load_ilc_floor", "load_model", "read_ilc_floor", "read_track_csv", "read_walk", "save_model", "settled_steps",
+    "suggest_for_run", "Suggestions", "track_walk", "track_walk_file", "train_model", "write_track_csv",
 ]
 
 TRACK_COLUMNS = ["t", "x", "y", "lat", "lon", "sigma_major_m", "sigma_minor_m", "angle_deg"]
@@ -42,8 +43,19 @@ TRACK_COLUMNS = ["t", "x", "y", "lat", "lon", "sigma_major_m", "sigma_minor_m", 
 def build_model(floor_dir: str | Path, cell_m: float = 0.8, reach_m: float = 1.7, raster_m: float = 0.1,
                 min_component_m2: float = 20.0, shops_walkable: bool = False) -> Model:
     """Model of a competition floor directory with default (untrained) parameters."""
-    raster = load_ilc_floor(floor_dir, res_m=raster_m, shops_walkable=shops_walkable)
-    return Model(graph=build_graph(raster, cell_m=cell_m, reach_m=reach_m, min_component_m2=min_component_m2))
+    return build_model_report(floor_dir, cell_m, reach_m, raster_m, min_component_m2, shops_walkable)[0]
+
+
+def build_model_report(floor_dir: str | Path, cell_m: float = 0.8, reach_m: float = 1.7, raster_m: float = 0.1,
+                       min_component_m2: float = 20.0, shops_walkable: bool = False) -> tuple[Model, FloorReport]:
+    """:func:`build_model` and what the floor reader used and skipped
+    (:func:`posefix.mapmatch.floorplan.read_ilc_floor`)."""
+    raster, report = read_ilc_floor(floor_dir, res_m=raster_m, shops_walkable=shops_walkable)
+    graph = build_graph(raster, cell_m=cell_m, reach_m=reach_m, min_component_m2=min_component_m2)
+    if graph.n_vertices == 0:
+        raise ValueError(f"{floor_dir}:0: field walkable area: no reachable cell of {cell_m} m survived "
+                         f"(areas under {min_component_m2} m² are dropped)")
+    return Model(graph=graph), report
 
 
 def build_polygon_model(width_m: float, height_m: float, walkable: list, blocked: list, cell_m: float = 0.8) -> Model:
