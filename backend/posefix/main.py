@@ -26,8 +26,8 @@ from sqlalchemy import text
 from posefix.config import Settings
 from posefix.db import Database
 from posefix.errors import install_error_handlers
-from posefix.runs.access import register_operator_runs
-from posefix.tasks.access import runs_of_assignments
+from posefix.runs.access import register_operator_runs, register_task_runs
+from posefix.tasks.access import live_runs, runs_of_assignments, task_runs
 
 log = logging.getLogger("posefix.http")
 
@@ -175,6 +175,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     settings = settings or Settings()
     configure_logging(settings)
     register_operator_runs(runs_of_assignments)
+    register_task_runs(task_runs, live_runs)
     db = Database(
         settings.resolved_database_url,
         pool_size=settings.db_pool_size,

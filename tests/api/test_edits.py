@@ -263,16 +263,16 @@ class TestSubmit:
         r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0}, headers=users["admin"])
         assert r.status_code == 422 and r.json()["error"] == "empty_batch"
 
-    def test_edits_appended_with_author_and_task(self, client, users, app):
+    def test_edits_appended_with_author(self, client, users, app):
         rid = new_run(client, users)
         _, xy = kf_coords(client, users["admin"], rid)
         for base, dx, who in ((0, 3, "admin"), (1, 6, "reviewer")):
             m = {"index": 15, "lon": xy[15, 0] + dx * METRE_LON, "lat": xy[15, 1]}
-            r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": base, "moves": [m], "task_id": 42}, headers=users[who])
+            r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": base, "moves": [m]}, headers=users[who])
             assert r.status_code == 202, r.text
         edits = client.get(f"/api/v1/runs/{rid}/edits", headers=users["admin"]).json()
         assert [e["k"] for e in edits] == [15, 15]
-        assert edits[0]["author_id"] != edits[1]["author_id"] and {e["task_id"] for e in edits} == {42}
+        assert edits[0]["author_id"] != edits[1]["author_id"] and {e["task_id"] for e in edits} == {None}
         assert edits[0]["lon"] != edits[1]["lon"]
         last = wait_job(app, 2)
         assert last["status"] == "succeeded"

@@ -17,7 +17,7 @@ from posefix.edits.schemas import (
 )
 from posefix.errors import responses
 from posefix.runs import repository as runs_repo
-from posefix.runs.access import get_visible_run
+from posefix.runs.access import check_direct_write, get_visible_run
 from posefix.runs.models import Revision
 
 router = APIRouter(tags=["edits"])
@@ -67,9 +67,12 @@ def submit_edits(
     """Submit a batch made against a base revision; the worker writes the next revision.
 
     409 ``stale_revision`` (with ``current_revision``) when someone else's batch came first;
-    422 ``edit_refused`` with a reason per refused edit.
+    422 ``edit_refused`` with a reason per refused edit. 403 ``review_required`` for an operator
+    on a run that belongs to a task (work goes through the assignment), ``not_on_task`` for a
+    ``task_id`` the caller holds no live assignment of on this run.
     """
     run = get_visible_run(session, principal, settings, run_id)
+    check_direct_write(session, principal, run, body.task_id)
     base = service.parse_base(if_match, body.base_revision)
     batch, job_id, flags = service.submit(
         session, settings, principal, run, base=base, moves=body.moves, deleted=body.deleted, accept=body.accept,
@@ -105,8 +108,10 @@ def revert(
     run_id: int, body: RevertRequest, request: Request, principal: EditorUser, session: SessionDep, settings: SettingsDep,
     if_match: Annotated[str | None, Header(alias="If-Match")] = None,
 ) -> EditBatchAccepted:
-    """Make a new revision with the edits of ``to_revision`` (history is kept)."""
+    """Make a new revision with the edits of ``to_revision`` (history is kept); operators may
+    not revert a run that belongs to a task (403 ``review_required``)."""
     run = get_visible_run(session, principal, settings, run_id)
+    check_direct_write(session, principal, run)
     base = run.head_revision if if_match is None and body.base_revision is None else service.parse_base(if_match, body.base_revision)
     batch, job_id = service.revert(session, settings, principal, run, to_revision=body.to_revision, base=base,
                                    comment=body.comment, wake=_wake(request))

@@ -9,6 +9,15 @@ jobs, events) applies the same rule.
   (the demo before tasks exist).
 
 Providers return a SELECT of run ids, so visibility stays one SQL query, never a Python loop.
+
+Who may *write* a visible run directly (``POST /runs/{id}/edits``, accept, revert) is
+``check_direct_write``: on a run that belongs to a task an operator's work goes through the
+assignment (submit, review or consensus, merge), so only reviewers and admins write it;
+operators may still write a run that belongs to no task (their uploads, or every run with
+``POSEFIX_OPERATORS_SEE_ALL_RUNS``). A ``task_id`` on an edit must name a task the caller
+holds a live assignment of on that run. The tasks domain answers both questions through
+``register_task_runs`` (registered by the app factory). The rule of every route is in
+docs/SECURITY.md.
 """
 
 from __future__ import annotations
@@ -19,13 +28,17 @@ from sqlalchemy import ColumnElement, Select, false, or_, select, true
 from sqlalchemy.orm import Session
 
 from posefix.config import Settings
-from posefix.errors import NotFound
+from posefix.errors import Forbidden, NotFound
 from posefix.runs.models import Run, RunStatus
 from posefix.users.models import Role
 from posefix.users.service import Principal
 
 RunIdsProvider = Callable[[int], Select]
 _operator_providers: list[RunIdsProvider] = []
+# (task_runs() -> SELECT run_id of runs under any task,
+#  live_runs(user_id, task_id) -> SELECT run_id the user holds a live assignment on in that task)
+TaskRunsProvider = tuple[Callable[[], Select], Callable[[int, int], Select]]
+_task_providers: list[TaskRunsProvider] = []
 
 
 def register_operator_runs(provider: RunIdsProvider) -> RunIdsProvider:
@@ -33,6 +46,12 @@ def register_operator_runs(provider: RunIdsProvider) -> RunIdsProvider:
     if provider not in _operator_providers:
         _operator_providers.append(provider)
     return provider
+
+
+def register_task_runs(task_runs: Callable[[], Select], live_runs: Callable[[int, int], Select]) -> None:
+    """Register which runs belong to tasks and which task runs a user holds a live assignment on."""
+    if (task_runs, live_runs) not in _task_providers:
+        _task_providers.append((task_runs, live_runs))
 
 
 def visible_clause(principal: Principal, settings: Settings) -> ColumnElement[bool]:
@@ -69,3 +88,26 @@ def get_visible_run(
     if run is None:
         raise NotFound(f"run {run_id} not found", code="run_not_found")
     return run
+
+
+def is_task_run(session: Session, run_id: int) -> bool:
+    """Whether the run belongs to any task (whatever the task's status)."""
+    return any(session.scalar(select(Run.id).where(Run.id == run_id, Run.id.in_(t()))) is not None
+               for t, _ in _task_providers)
+
+
+def holds_live_assignment(session: Session, user_id: int, task_id: int, run_id: int) -> bool:
+    return any(session.scalar(select(Run.id).where(Run.id == run_id, Run.id.in_(live(user_id, task_id)))) is not None
+               for _, live in _task_providers)
+
+
+def check_direct_write(session: Session, principal: Principal, run: Run, task_id: int | None = None) -> None:
+    """403 unless the principal may edit, accept or revert this (visible) run directly."""
+    if principal.role == Role.operator and is_task_run(session, run.id):
+        raise Forbidden(
+            f"run {run.id} belongs to a task: submit your work through your assignment, reviewers merge it",
+            code="review_required",
+        )
+    if task_id is not None and not holds_live_assignment(session, principal.user_id, task_id, run.id):
+        raise Forbidden(f"you hold no live assignment of task {task_id} on run {run.id}", code="not_on_task",
+                        extra={"task_id": task_id})

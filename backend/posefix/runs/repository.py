@@ -112,6 +112,15 @@ def record(session: Session, run: Run, actor_id: int | None, action: str, *, to_
     return ev
 
 
+def authored_up_to(session: Session, run_id: int, user_id: int, revision: int) -> bool:
+    """Whether the user edited or reverted the run in a batch up to ``revision``."""
+    stmt = select(RunEvent.id).where(
+        RunEvent.run_id == run_id, RunEvent.actor_id == user_id, RunEvent.action.in_(("edited", "reverted")),
+        RunEvent.revision <= revision,
+    ).limit(1)
+    return session.scalar(stmt) is not None
+
+
 def claim_next_revision(session: Session, run_id: int, base_revision: int) -> bool:
     """Move the run's head from ``base_revision`` to ``base_revision + 1`` in one conditional
     UPDATE; False when another batch got there first (the base is stale)."""

@@ -350,7 +350,10 @@ def soft_delete(session: Session, principal: Principal, run: Run) -> None:
 
 
 def review(session: Session, principal: Principal, run: Run, decision: str, comment: str | None) -> Run:
-    """A reviewer accepts a run (verified) or sends it back to review."""
+    """A reviewer accepts a run (verified) or sends it back to review; nobody reviews a
+    revision that holds their own edits (the task review's ``own_work`` rule)."""
+    if repo.authored_up_to(session, run.id, principal.user_id, run.head_revision):
+        raise Forbidden("you edited this run, so someone else reviews it", code="own_work")
     if run.head_revision != run.revision:
         raise Conflict("a revision is still being computed; review it when it is ready", code="revision_pending",
                        extra={"revision": run.revision, "head_revision": run.head_revision})

@@ -48,7 +48,8 @@ def me(principal: AnyUser) -> UserPublic:
 
 @router.post("/tokens", response_model=TokenCreated, status_code=201, tags=["tokens"], responses=responses(401, 403))
 def create_token(body: TokenCreate, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> TokenCreated:
-    """Create a personal API token; the secret is returned once and stored only hashed."""
+    """Create a personal API token (from a login session only: 403 ``session_required`` with a
+    bearer token); the secret is returned once and stored only hashed."""
     row, secret = service.create_token(session, settings, principal, body.name, body.scope)
     return TokenCreated(id=row.id, name=row.name, scope=body.scope, token=secret)
 

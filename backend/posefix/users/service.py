@@ -166,8 +166,10 @@ def logout(session: Session, principal: Principal) -> None:
 
 
 def create_token(session: Session, settings: Settings, principal: Principal, name: str, scope: TokenScope) -> tuple[ApiToken, str]:
-    if principal.via == "token" and scope == TokenScope.write and principal.scope != TokenScope.write:
-        raise Forbidden("a read token cannot create a write token", code="insufficient_scope")
+    # Only a login session makes tokens: a leaked token cannot mint longer-lived copies of itself
+    # that survive its revocation.
+    if principal.via != "session":
+        raise Forbidden("API tokens are made from a login session, not with another token", code="session_required")
     secret = new_api_token()
     row = ApiToken(user_id=principal.user_id, name=name, token_hash=hash_secret(secret, settings.secret_key), scope=scope.value)
     repo.add(session, row)
