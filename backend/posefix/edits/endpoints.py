@@ -28,8 +28,8 @@ def _wake(request: Request) -> Any:
     return worker.wake if worker is not None else None
 
 
-def _rev_public(rev: Revision, detail: bool = False) -> RevisionPublic:
-    data = dict(
+def _rev_public(rev: Revision, detail: bool = False, notes: dict[str, Any] | None = None, author: str | None = None) -> RevisionPublic:
+    data = dict(**(notes or {}), author=author,
         number=rev.number, kind=rev.kind, batch_id=rev.batch_id, created_by=rev.created_by, created_at=rev.created_at,
         solver=rev.solver, drift=rev.drift, max_correction_m=rev.max_correction_m,
         n_moves=len(rev.edit_set.get("moves", [])), n_deleted=len(rev.edit_set.get("deleted", [])),
@@ -84,7 +84,11 @@ def submit_edits(
 @router.get("/runs/{run_id}/revisions", response_model=RevisionList, responses=responses(401, 404))
 def list_revisions(run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> RevisionList:
     run = get_visible_run(session, principal, settings, run_id)
-    return RevisionList(items=[_rev_public(r) for r in runs_repo.revisions(session, run.id)], head_revision=run.head_revision)
+    revs = runs_repo.revisions(session, run.id)
+    notes = edits_repo.revision_notes(session, run.id)
+    names = edits_repo.usernames(session, {r.created_by for r in revs if r.created_by is not None})
+    items = [_rev_public(r, notes=notes.get(r.number), author=names.get(r.created_by or 0)) for r in revs]
+    return RevisionList(items=items, head_revision=run.head_revision)
 
 
 @router.get("/runs/{run_id}/revisions/{number}", response_model=RevisionDetail, responses=responses(401, 404, 409))

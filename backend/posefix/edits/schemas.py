@@ -74,6 +74,12 @@ class RevisionPublic(BaseModel):
     max_correction_m: float
     n_moves: int
     n_deleted: int
+    author: str | None = Field(default=None, description="username of created_by")
+    comment: str | None = Field(default=None, description="the submitter's comment (of the batch that made this revision)")
+    task_id: int | None = Field(default=None, description="the task the batch was submitted for")
+    review: str | None = Field(default=None, description="the last review decision on this revision: accepted | rejected")
+    review_comment: str | None = None
+    reviewer: str | None = None
 
 
 class RevisionDetail(RevisionPublic):

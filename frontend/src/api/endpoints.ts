@@ -7,6 +7,8 @@ export type UserPublic = Schemas["UserPublic"];
 export type RunSummary = Schemas["RunPublic"];
 export type TileSource = Schemas["TileSourcePublic"];
 export type ImagePublic = Schemas["ImagePublic"];
+export type RevisionPublic = Schemas["RevisionPublic"];
+export type UserActivity = Schemas["UserActivity"];
 
 export interface PreviewResult {
   positions: LonLat[];
@@ -63,6 +65,12 @@ export const api = {
 
   getJob: (id: string | number) => unwrap(client.GET("/api/v1/jobs/{job_id}", { params: { path: { job_id: Number(id) } } })),
   listRevisions: (id: string) => unwrap(client.GET("/api/v1/runs/{run_id}/revisions", { params: { path: { run_id: Number(id) } } })),
+  diff: (id: string, from: number, to: number) =>
+    unwrap(client.GET("/api/v1/runs/{run_id}/diff", { params: { path: { run_id: Number(id) }, query: { from, to } } })),
+  revert: (id: string, toRevision: number, baseRevision: number, comment: string) =>
+    unwrap(client.POST("/api/v1/runs/{run_id}/revert", { params: { path: { run_id: Number(id) } }, body: { to_revision: toRevision, base_revision: baseRevision, comment: comment || null } })),
+  listUsers: () => unwrap(client.GET("/api/v1/users", { params: { query: { limit: 500 } } })),
+  userActivity: (userId: number) => unwrap(client.GET("/api/v1/users/{user_id}/activity", { params: { path: { user_id: userId } } })),
 
   listTileSources: () => unwrap(client.GET("/api/v1/tile-sources")),
   addTileSource: (body: Schemas["TileSourceCreate"]) => unwrap(client.POST("/api/v1/tile-sources", { body })),

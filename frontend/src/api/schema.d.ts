@@ -1183,6 +1183,26 @@ export interface paths {
         patch: operations["update_user_api_v1_users__user_id__patch"];
         trace?: never;
     };
+    "/api/v1/users/{user_id}/activity": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Get User Activity
+         * @description An admin's audit view of one person: the edits they submitted and the reviews they made, newest first.
+         */
+        get: operations["get_user_activity_api_v1_users__user_id__activity_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/healthz": {
         parameters: {
             query?: never;
@@ -1344,6 +1364,35 @@ export interface components {
             mean_m: number;
             /** To */
             to: number;
+        };
+        /** EditActivity */
+        EditActivity: {
+            /** Accept */
+            accept: boolean;
+            /** Comment */
+            comment: string | null;
+            /**
+             * Created At
+             * Format: date-time
+             */
+            created_at: string;
+            /**
+             * Kind
+             * @description edit | revert
+             */
+            kind: string;
+            /** N Deleted */
+            n_deleted: number;
+            /** N Moves */
+            n_moves: number;
+            /** Revision */
+            revision: number;
+            /** Run Id */
+            run_id: number;
+            /** Run Name */
+            run_name: string;
+            /** Task Id */
+            task_id: number | null;
         };
         /** EditBatchAccepted */
         EditBatchAccepted: {
@@ -1821,6 +1870,33 @@ export interface components {
             /** To Revision */
             to_revision: number;
         };
+        /** ReviewActivity */
+        ReviewActivity: {
+            /** Assignment Id */
+            assignment_id?: number | null;
+            /** At */
+            at: string | null;
+            /** Comment */
+            comment: string | null;
+            /**
+             * Decision
+             * @description approved | rejected (assignments), accepted | rejected (runs)
+             */
+            decision: string;
+            /** Revision */
+            revision?: number | null;
+            /** Run Id */
+            run_id: number;
+            /** Run Name */
+            run_name: string;
+            /**
+             * Target
+             * @description assignment (a task submission) | run (a run's revision)
+             */
+            target: string;
+            /** Task Id */
+            task_id?: number | null;
+        };
         /** ReviewIn */
         ReviewIn: {
             /**
@@ -1886,8 +1962,18 @@ export interface components {
         };
         /** RevisionDetail */
         RevisionDetail: {
+            /**
+             * Author
+             * @description username of created_by
+             */
+            author?: string | null;
             /** Batch Id */
             batch_id: number | null;
+            /**
+             * Comment
+             * @description the submitter's comment (of the batch that made this revision)
+             */
+            comment?: string | null;
             /**
              * Created At
              * Format: date-time
@@ -1913,10 +1999,24 @@ export interface components {
             n_moves: number;
             /** Number */
             number: number;
+            /**
+             * Review
+             * @description the last review decision on this revision: accepted | rejected
+             */
+            review?: string | null;
+            /** Review Comment */
+            review_comment?: string | null;
+            /** Reviewer */
+            reviewer?: string | null;
             /** Solver */
             solver: {
                 [key: string]: unknown;
             } | null;
+            /**
+             * Task Id
+             * @description the task the batch was submitted for
+             */
+            task_id?: number | null;
         };
         /** RevisionList */
         RevisionList: {
@@ -1927,8 +2027,18 @@ export interface components {
         };
         /** RevisionPublic */
         RevisionPublic: {
+            /**
+             * Author
+             * @description username of created_by
+             */
+            author?: string | null;
             /** Batch Id */
             batch_id: number | null;
+            /**
+             * Comment
+             * @description the submitter's comment (of the batch that made this revision)
+             */
+            comment?: string | null;
             /**
              * Created At
              * Format: date-time
@@ -1950,10 +2060,24 @@ export interface components {
             n_moves: number;
             /** Number */
             number: number;
+            /**
+             * Review
+             * @description the last review decision on this revision: accepted | rejected
+             */
+            review?: string | null;
+            /** Review Comment */
+            review_comment?: string | null;
+            /** Reviewer */
+            reviewer?: string | null;
             /** Solver */
             solver: {
                 [key: string]: unknown;
             } | null;
+            /**
+             * Task Id
+             * @description the task the batch was submitted for
+             */
+            task_id?: number | null;
         };
         /**
          * Role
@@ -2661,6 +2785,17 @@ export interface components {
             task_run_id: number | null;
             /** To Status */
             to_status: string;
+        };
+        /** UserActivity */
+        UserActivity: {
+            /** Edits */
+            edits: components["schemas"]["EditActivity"][];
+            /** Reviews */
+            reviews: components["schemas"]["ReviewActivity"][];
+            /** User Id */
+            user_id: number;
+            /** Username */
+            username: string;
         };
         /** UserAdminView */
         UserAdminView: {
@@ -7057,6 +7192,66 @@ export interface operations {
             };
             /** @description Conflict */
             409: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    get_user_activity_api_v1_users__user_id__activity_get: {
+        parameters: {
+            query?: {
+                limit?: number;
+            };
+            header?: never;
+            path: {
+                user_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["UserActivity"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not allowed */
+            403: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
                 headers: {
                     [name: string]: unknown;
                 };

@@ -7,7 +7,7 @@ import type { EditorState } from "../state/editor";
 
 export type EditorCommand =
   | "undo" | "redo" | "next" | "previous" | "next-adjustable" | "toggle-delete" | "delete-range"
-  | "images" | "ghost" | "fit" | "unmove" | "escape";
+  | "images" | "ghost" | "fit" | "unmove" | "history" | "escape";
 
 export interface KeyLike {
   key: string;
@@ -35,6 +35,7 @@ export function editorCommand(e: KeyLike, s: Pick<EditorState, "conflict" | "mod
     case "g": case "G": return "ghost";
     case "f": case "F": return "fit";
     case "u": case "U": return "unmove";
+    case "h": case "H": return "history";
     case "Escape": return "escape";
     default: return null;
   }

@@ -10,6 +10,7 @@ import { suggestionsFC } from "../maps/suggestions";
 import {
   type FC,
   STATUS_COLORS,
+  compareFC,
   emptyFC,
   ghostFC,
   keyframesFC,
@@ -22,6 +23,9 @@ import { arrowIcon, chevronIcon } from "./icons";
 
 export const KEYFRAME_LAYER = "pf-kf-hit";
 export const SUGGESTION_POINT_LAYER = "pf-sug-point";
+/** Revisions compared in the history panel: the older dashed teal, the newer violet. */
+export const COMPARE_FROM = "#0d9488";
+export const COMPARE_TO = "#7c3aed";
 /** Machine suggestions in amber, distinct from the operator's blues. */
 export const SUGGESTION_COLOR = "#d97706";
 
@@ -43,6 +47,7 @@ const SOURCES: SourceSpec[] = [
   { id: "pf-selection", deps: (s) => [s.doc, currentEdits(s), s.preview, s.selected, s.rangeAnchor], build: selectionFC },
   { id: "pf-staging", deps: (s) => [s.doc, s.staging], build: stagingFC },
   { id: "pf-refusal", deps: (s) => [s.refusal], build: refusalFC },
+  { id: "pf-compare", deps: (s) => [s.compare], build: compareFC },
   { id: "pf-suggestions", deps: (s) => [currentSuggestions(s), s.doc, currentEdits(s), s.preview], build: suggestionLayerFC },
 ];
 
@@ -134,6 +139,11 @@ export class MapAdapter {
     add({ id: "pf-staging-rubber", type: "line", source: "pf-staging", filter: ["==", ["get", "kind"], "rubber"], paint: { "line-color": "#0ea5e9", "line-width": 2, "line-dasharray": [2, 2] } });
     add({ id: "pf-staging-point", type: "circle", source: "pf-staging", filter: ["==", ["get", "kind"], "point"], paint: { "circle-radius": 8, "circle-color": "#0ea5e9", "circle-stroke-color": "#fff", "circle-stroke-width": 2 } });
     add({ id: "pf-refusal-ring", type: "circle", source: "pf-refusal", paint: { "circle-radius": 14, "circle-color": "rgba(220,38,38,0.15)", "circle-stroke-color": "#dc2626", "circle-stroke-width": 3 } });
+    const cmp = (kind: string, extra: unknown[] = []) => (extra.length ? ["all", ["==", ["get", "kind"], kind], extra] : ["==", ["get", "kind"], kind]) as never;
+    add({ id: "pf-compare-from", type: "line", source: "pf-compare", filter: cmp("track", ["==", ["get", "which"], "from"]), paint: { "line-color": COMPARE_FROM, "line-width": 3, "line-dasharray": [2, 1.5] } });
+    add({ id: "pf-compare-to", type: "line", source: "pf-compare", filter: cmp("track", ["==", ["get", "which"], "to"]), paint: { "line-color": COMPARE_TO, "line-width": 3 } });
+    add({ id: "pf-compare-link", type: "line", source: "pf-compare", filter: cmp("link"), paint: { "line-color": COMPARE_TO, "line-width": 1.5 } });
+    add({ id: "pf-compare-moved", type: "circle", source: "pf-compare", filter: cmp("moved"), paint: { "circle-radius": 5, "circle-color": COMPARE_TO, "circle-stroke-color": "#fff", "circle-stroke-width": 1.5 } });
     const sug = (kind: string) => ["==", ["get", "kind"], kind] as never;
     add({ id: "pf-sug-path", type: "line", source: "pf-suggestions", filter: sug("path"), paint: { "line-color": SUGGESTION_COLOR, "line-width": 2, "line-opacity": 0.7, "line-dasharray": [3, 2] } });
     add({ id: "pf-sug-link", type: "line", source: "pf-suggestions", filter: sug("link"), paint: { "line-color": SUGGESTION_COLOR, "line-width": 1.5, "line-dasharray": [1, 1.5] } });

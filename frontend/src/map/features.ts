@@ -119,3 +119,21 @@ export function bounds(s: EditorState): [number, number, number, number] | null 
   }
   return [a, b, c, d];
 }
+
+/** Two revisions compared: each track, and a link per moved keyframe from one to the other. */
+export function compareFC(s: EditorState): FC {
+  const c = s.compare;
+  if (!c) return emptyFC();
+  const features: GeoJSON.Feature[] = [];
+  const line = (pts: readonly LonLat[], which: string) =>
+    pts.length >= 2 && features.push({ type: "Feature", properties: { kind: "track", which }, geometry: { type: "LineString", coordinates: pts.map((p) => [p[0], p[1]]) } });
+  line(c.fromPositions, "from");
+  line(c.toPositions, "to");
+  for (const i of c.moved) {
+    const a = c.fromPositions[i], b = c.toPositions[i];
+    if (!a || !b) continue;
+    features.push({ type: "Feature", properties: { kind: "link", i }, geometry: { type: "LineString", coordinates: [[a[0], a[1]], [b[0], b[1]]] } });
+    features.push({ type: "Feature", properties: { kind: "moved", i }, geometry: { type: "Point", coordinates: [b[0], b[1]] } });
+  }
+  return { type: "FeatureCollection", features };
+}

@@ -52,6 +52,20 @@ export interface EditorState {
   lastSolverTimeS: number | null;
   /** Map-matching suggestions, for the revision they were computed on. */
   suggestions: SuggestionsState;
+  /** Two revisions compared on the map (history panel), or null. */
+  compare: RevisionCompare | null;
+}
+
+export interface RevisionCompare {
+  from: number;
+  to: number;
+  /** Keyframe positions at each revision. */
+  fromPositions: LonLat[];
+  toPositions: LonLat[];
+  /** Horizontal distance (m) per keyframe between the two. */
+  displacement: number[];
+  /** Keyframes that moved more than 1 mm. */
+  moved: number[];
 }
 
 export function editorNew(): EditorState {
@@ -72,6 +86,7 @@ export function editorNew(): EditorState {
     error: null,
     lastSolverTimeS: null,
     suggestions: { kind: "idle" },
+    compare: null,
   };
 }
 

@@ -7,6 +7,7 @@ import { api } from "../api/endpoints";
 import type { AppContext } from "./context";
 import { ApiError } from "../api/errors";
 import { renderAdminRuns } from "./adminRuns";
+import { renderAdminPeople } from "./adminPeople";
 import { renderAdminTiles } from "./adminTiles";
 import { clear, h } from "./dom";
 import { renderEditor } from "./editor/view";
@@ -47,6 +48,7 @@ export function startApp(root: HTMLElement): void {
         u ? h("a", { href: "#/" }, "My runs") : null,
         u && u.role === "admin" ? h("a", { href: "#/admin/runs" }, "Runs (admin)") : null,
         u && u.role === "admin" ? h("a", { href: "#/admin/tiles" }, "Tile sources") : null,
+        u && u.role === "admin" ? h("a", { href: "#/admin/people" }, "People") : null,
         ...tasksNav(u),
         u ? h("a", { href: "#/floors" }, "Floor plans") : null,
       ),
@@ -100,6 +102,7 @@ export function startApp(root: HTMLElement): void {
     else if (m) cleanup = renderEditor(main, ctx, decodeURIComponent(m[1]));
     else if (path.startsWith("/admin/runs")) cleanup = renderAdminRuns(main, ctx);
     else if (path.startsWith("/admin/tiles")) cleanup = renderAdminTiles(main, ctx);
+    else if (path.startsWith("/admin/people")) cleanup = renderAdminPeople(path, main, ctx);
     else cleanup = renderHome(main, ctx);
   }
 

@@ -212,6 +212,11 @@ export class EditorController {
       this.submitFailed(err, doc);
       return;
     }
+    await this.awaitRevision(jobId, (rev) => `Submitted. Revision ${rev} is ready.`);
+  }
+
+  /** Follow the correction job of an accepted batch; load its revision when it is ready. */
+  private async awaitRevision(jobId: string, notice: (revision: number) => string): Promise<void> {
     this.store.update((x) => ({ ...x, submit: { kind: "waiting", jobId, progress: 0 } }));
     const t0 = Date.now();
     try {
@@ -227,14 +232,33 @@ export class EditorController {
         if (Date.now() - t0 > JOB_TIMEOUT_MS) throw new Error("the correction job is taking long; your edits were received, reload later");
         await new Promise((r) => setTimeout(r, JOB_POLL_MS));
       }
-      const next = await api.loadDoc(doc.runId);
+      const next = await api.loadDoc(this.runId);
       localStorage.removeItem(this.storageKey);
       this.store.update((x) => ({ ...loadDoc(x, next), submit: { kind: "done", revision: next.revision } }));
-      this.onNotice(`Submitted. Revision ${next.revision} is ready.`);
+      this.onNotice(notice(next.revision));
     } catch (err) {
       // The batch was accepted by the server; what failed is waiting for its result.
       this.store.update((x) => ({ ...x, submit: { kind: "error", message: `Submitted, but: ${describeError(err)}` } }));
     }
+  }
+
+  /**
+   * Make a new revision with the edits of revision `to` (history is kept). Refused while
+   * there are unsaved edits: they were made against the shown revision.
+   */
+  async revertTo(to: number, comment: string): Promise<void> {
+    const s = this.store.get();
+    if (!s.doc || s.submit.kind === "sending" || s.submit.kind === "waiting") return;
+    if (editCount(currentEdits(s)) > 0) throw new Error("Submit or reset your unsaved edits before reverting.");
+    this.store.update((x) => ({ ...x, submit: { kind: "sending" }, error: null }));
+    let jobId: string;
+    try {
+      jobId = String((await api.revert(this.runId, to, s.doc.revision, comment)).job_id);
+    } catch (err) {
+      this.store.update((x) => ({ ...x, submit: { kind: "idle" } }));
+      throw err;
+    }
+    await this.awaitRevision(jobId, (rev) => `Reverted to revision ${to}: revision ${rev} is ready.`);
   }
 
   private submitFailed(err: unknown, doc: RunDoc): void {

