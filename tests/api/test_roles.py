@@ -10,6 +10,7 @@ from tests.conftest import drive_csv, upload
 MATRIX = [
     ("GET", "/api/v1/runs", None, {"admin", "reviewer", "operator", "client"}),
     ("GET", "/api/v1/users", None, {"admin"}),
+    ("GET", "/api/v1/users/1/activity", None, {"admin"}),
     ("POST", "/api/v1/users", {"username": "u_{role}", "password": "longenough1", "role": "operator"}, {"admin"}),
     ("POST", "/api/v1/runs/{run}/preview", {"base_revision": 0, "moves": []}, {"admin", "reviewer", "operator"}),
     ("POST", "/api/v1/runs/{run}/edits", {"base_revision": "{head}", "deleted": [1]}, {"admin", "reviewer", "operator"}),
