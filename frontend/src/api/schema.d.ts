@@ -626,7 +626,9 @@ export interface paths {
          * @description Submit a batch made against a base revision; the worker writes the next revision.
          *
          *     409 ``stale_revision`` (with ``current_revision``) when someone else's batch came first;
-         *     422 ``edit_refused`` with a reason per refused edit.
+         *     422 ``edit_refused`` with a reason per refused edit. 403 ``review_required`` for an operator
+         *     on a run that belongs to a task (work goes through the assignment), ``not_on_task`` for a
+         *     ``task_id`` the caller holds no live assignment of on this run.
          */
         post: operations["submit_edits_api_v1_runs__run_id__edits_post"];
         delete?: never;
@@ -746,7 +748,8 @@ export interface paths {
         put?: never;
         /**
          * Revert
-         * @description Make a new revision with the edits of ``to_revision`` (history is kept).
+         * @description Make a new revision with the edits of ``to_revision`` (history is kept); operators may
+         *     not revert a run that belongs to a task (403 ``review_required``).
          */
         post: operations["revert_api_v1_runs__run_id__revert_post"];
         delete?: never;
@@ -1118,7 +1121,8 @@ export interface paths {
         put?: never;
         /**
          * Create Token
-         * @description Create a personal API token; the secret is returned once and stored only hashed.
+         * @description Create a personal API token (from a login session only: 403 ``session_required`` with a
+         *     bearer token); the secret is returned once and stored only hashed.
          */
         post: operations["create_token_api_v1_tokens_post"];
         delete?: never;
