@@ -5,3 +5,5 @@ export * from "./sensors";
 export * from "./filters";
 export * from "./fingerprints";
 export * from "./tracker";
+export * from "./live";
+export * from "./evaluate";
