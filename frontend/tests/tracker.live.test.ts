@@ -47,3 +47,16 @@ describe("live steps from samples one at a time", () => {
     expect(headingFromEuler(alpha, 0)).toBeCloseTo(h, 12);
   });
 });
+
+describe("tapping the start on the floor view", async () => {
+  const { fitView, fromPx, parseStart, toPx } = await import("../src/maps/floorView");
+  it("fromPx inverts toPx, and the start field reads x,y or nothing", () => {
+    const v = fitView(239.8, 176.4, 900, 660);
+    const [px, py] = toPx(v, 81.3, 93.3);
+    const [x, y] = fromPx(v, px, py);
+    expect(x).toBeCloseTo(81.3, 9);
+    expect(y).toBeCloseTo(93.3, 9);
+    expect(parseStart(" 81.3, 93.3 ")).toEqual([81.3, 93.3]);
+    for (const bad of ["", "81.3", "a,b", "1,2,3", "1,"]) expect(parseStart(bad)).toBeNull();
+  });
+});

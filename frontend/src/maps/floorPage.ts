@@ -2,13 +2,21 @@
  * Floor plan pages: #/floors (list, admin upload with the model job's progress) and
  * #/floors/ID (the floor image in its metric frame on a canvas — works offline — with a
  * walk's matched track, the raw dead-reckoning track, the 2σ uncertainty ellipse, a
- * step-by-step replay (play/pause/scrub) and the error at each surveyed waypoint).
+ * step-by-step replay (play/pause/scrub) and the error at each surveyed waypoint). Walks
+ * are tracked in the browser (src/tracker, from the downloaded model), the server's answer
+ * on request beside it; "Track me" tracks the phone itself from its motion sensors.
  */
 import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/context";
 import { clear, fmtTime, h } from "../ui/dom";
 import { type FloorPlan, type WalkTrack, jobResult, mapsApi } from "./api";
-import { ellipsePx, fitBox, fmtM, reachedWaypoints, toPx, walkBox } from "./floorView";
+import { LiveSession } from "../tracker/live";
+import { WalkFormatError, parseWalk } from "../tracker/sensors";
+import { type Mode, trackWalk } from "../tracker/tracker";
+import { floorModel, liveTrack, walkTrackFromRun } from "./deviceTrack";
+import { ellipsePx, fitBox, fmtM, fromPx, parseStart, reachedWaypoints, toPx, walkBox, type View } from "./floorView";
+import { keepFloorsOffline, keepForOffline } from "./offline";
+import { askMotionPermission, listenSensors } from "./trackMe";
 import "./maps.css";
 
 const STEP_MS = 200;
@@ -18,6 +26,7 @@ function kib(n: number | null): string {
 }
 
 export function renderFloorsRoute(path: string, main: HTMLElement, ctx: AppContext): (() => void) | void {
+  keepFloorsOffline();
   const m = path.match(/^\/floors\/(\d+)/);
   if (m) return renderFloor(main, ctx, Number(m[1]));
   return renderFloorList(main, ctx);
@@ -110,6 +119,9 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   let step = 0;
   let image: HTMLImageElement | null = null;
   let zoomed = false; // to the walk, or the whole floor
+  let view: View | null = null;
+  let modes: Mode[] | null = null; // a live session's modes while it has not converged
+  let live: { session: LiveSession; stop: () => void } | null = null;
 
   const title = h("h1", {}, "Floor plan");
   const meta = h("p", { class: "floor-meta", "data-testid": "floor-meta" });
@@ -118,6 +130,12 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   const start = h("select", { "aria-label": "Start", "data-testid": "walk-start" },
     h("option", { value: "first_waypoint" }, "Known start (first waypoint)"), h("option", { value: "unknown" }, "Unknown start"));
   const trackBtn = h("button", { type: "button", class: "primary", "data-testid": "walk-track" }, "Track walk");
+  const serverBtn = h("button", { type: "button", "data-testid": "walk-server", disabled: true }, "Compare with the server");
+  const serverLine = h("p", { "data-testid": "server-error-mean" });
+  const startField = h("input", { "aria-label": "Start (x,y in metres; tap the map)", placeholder: "tap the map, or x,y (m)", "data-testid": "track-start", inputmode: "decimal" });
+  const meBtn = h("button", { type: "button", class: "primary", "data-testid": "track-me" }, "Track me");
+  const stopBtn = h("button", { type: "button", "data-testid": "track-stop", disabled: true }, "Stop");
+  const liveMsg = h("p", { class: "floor-msg", role: "status", "data-testid": "live-msg" });
   const msg = h("p", { class: "floor-msg", role: "status", "data-testid": "walk-msg" });
   const play = h("button", { type: "button", "data-testid": "replay-play", disabled: true }, "▶ Play");
   const scrub = h("input", { type: "range", min: "0", max: "0", value: "0", "aria-label": "Step", "data-testid": "replay-scrub", disabled: true });
@@ -141,8 +159,11 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       h("div", { class: "floor-left" }, canvas,
         h("div", { class: "replay", role: "group", "aria-label": "Replay" }, play, scrub, stepLabel, zoomBtn)),
       h("aside", { class: "floor-side" },
-        h("h2", {}, "Track a walk"), h("p", {}, "A walk in the competition's path-file format (.txt)."), walkFile, start, trackBtn, msg,
-        summary, legend,
+        h("h2", {}, "Track me"),
+        h("p", {}, "Tracks this phone from its motion sensors, in the browser. Tap your start on the map (or leave it empty: the page then shows every place the steps fit). Works offline once this page and the model are loaded."),
+        startField, h("div", { class: "track-me" }, meBtn, stopBtn), liveMsg,
+        h("h2", {}, "Track a walk"), h("p", {}, "A walk in the competition's path-file format (.txt), tracked in this browser."), walkFile, start, trackBtn, msg,
+        summary, serverBtn, serverLine, legend,
         h("table", { class: "floor-table" }, h("thead", {}, h("tr", {}, h("th", {}, "Waypoint"), h("th", {}, "CRF error"), h("th", {}, "Dead reckoning"))), errTable)))));
 
   function draw() {
@@ -150,6 +171,8 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     if (!c || !fp) return;
     const box: [number, number, number, number] = zoomed && track ? walkBox(track) : [0, 0, fp.width_m, fp.height_m];
     const v = fitBox(box, canvas.width, canvas.height);
+    view = v;
+    canvas.dataset.view = JSON.stringify(v);
     c.clearRect(0, 0, canvas.width, canvas.height);
     c.fillStyle = "#f8fafc";
     c.fillRect(0, 0, canvas.width, canvas.height);
@@ -158,6 +181,15 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     else {
       c.strokeStyle = "#94a3b8";
       c.strokeRect(x0, y1, fp.width_m * v.scale, fp.height_m * v.scale);
+    }
+    const startXY = parseStart(startField.value);
+    if (startXY) {
+      const [sx, sy] = toPx(v, startXY[0], startXY[1]);
+      c.strokeStyle = "#15803d";
+      c.lineWidth = 2;
+      c.beginPath();
+      c.arc(sx, sy, 7, 0, 2 * Math.PI);
+      c.stroke();
     }
     if (!track) return;
     const n = Math.min(step, track.steps.length - 1);
@@ -174,6 +206,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     line(upto.map((s) => toPx(v, s.dr_x_m, s.dr_y_m)), "#64748b", 2, [6, 4]);
     line(upto.map((s) => toPx(v, s.x_m, s.y_m)), "#1d4ed8", 3, []);
     const cur = track.steps[n];
+    if (modes && n === track.steps.length - 1) return drawModes(c, v, modes); // no single position to show
     const [cx, cy] = toPx(v, cur.x_m, cur.y_m);
     const e = ellipsePx(v, cur);
     c.beginPath();
@@ -269,21 +302,126 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       msg.textContent = "Choose a walk file first.";
       return;
     }
-    const fd = new FormData();
-    fd.append("start", start.value);
-    fd.append("file", f, f.name);
     trackBtn.disabled = true;
-    msg.textContent = "Tracking…";
+    msg.textContent = "Tracking in this browser…";
+    serverLine.textContent = "";
     try {
-      const t = await mapsApi.trackWalk(fp.id, fd);
+      const [model, text] = await Promise.all([floorModel(fp.id), f.text()]);
+      const walk = parseWalk(text, f.name);
+      const known = start.value === "first_waypoint";
+      if (known && !walk.waypoints.length) throw new Error(`${f.name}: field TYPE_WAYPOINT: no waypoint to start from; choose Unknown start`);
+      const run = trackWalk(model, walk, known ? [walk.waypoints[0].x_m, walk.waypoints[0].y_m] : null);
       if (!alive) return;
       msg.textContent = "";
-      showTrack(t);
+      stopLive();
+      modes = null;
+      showTrack(walkTrackFromRun(run, walk, f.name, known));
+      serverBtn.disabled = false;
     } catch (err) {
-      msg.textContent = describeError(err);
+      msg.textContent = err instanceof WalkFormatError || err instanceof Error ? err.message : describeError(err);
     } finally {
       trackBtn.disabled = false;
     }
+  });
+
+  // The same file through the server's tracker (its smoothed, offline answer), for comparison.
+  serverBtn.addEventListener("click", async () => {
+    const f = walkFile.files?.[0];
+    if (!f || !fp) return;
+    const fd = new FormData();
+    fd.append("start", start.value);
+    fd.append("file", f, f.name);
+    serverBtn.disabled = true;
+    serverLine.textContent = "Asking the server…";
+    try {
+      const t = await mapsApi.trackWalk(fp.id, fd);
+      const e = t.errors;
+      serverLine.textContent = e.n
+        ? `Server (smoothed over the whole walk): mean ${fmtM(e.mean_m)} at ${e.n} waypoints, ${t.walk.ms_per_step.toFixed(2)} ms per step; this browser shows the live (filtered) position.`
+        : "The server tracked the walk; it has no waypoints to compare.";
+    } catch (err) {
+      serverLine.textContent = `The server could not be asked: ${describeError(err)}`;
+    } finally {
+      serverBtn.disabled = false;
+    }
+  });
+
+  canvas.addEventListener("click", (e) => {
+    if (!view || !fp || live) return;
+    const r = canvas.getBoundingClientRect();
+    const [x, y] = fromPx(view, ((e.clientX - r.left) * canvas.width) / r.width, ((e.clientY - r.top) * canvas.height) / r.height);
+    if (x < 0 || y < 0 || x > fp.width_m || y > fp.height_m) return;
+    startField.value = `${x.toFixed(1)},${y.toFixed(1)}`;
+    draw();
+  });
+  startField.addEventListener("change", () => draw());
+
+  function stopLive() {
+    if (!live) return;
+    live.stop();
+    live = null;
+    meBtn.disabled = false;
+    stopBtn.disabled = true;
+  }
+
+  function showLive(final = false) {
+    if (!live) return;
+    const pts = live.session.points;
+    const last = pts[pts.length - 1];
+    modes = last.converged ? null : last.modes;
+    track = liveTrack(pts);
+    (window as unknown as { __posefixLiveTrack?: unknown }).__posefixLiveTrack = track.steps;
+    scrub.max = String(track.steps.length - 1);
+    scrub.disabled = play.disabled = zoomBtn.disabled = false;
+    const sigma = `2σ ${fmtM(2 * last.summary.sigma_major_m)}`;
+    liveMsg.textContent = `${final ? "Stopped" : "Tracking"}: ${pts.length - 1} steps · ` + (last.converged
+      ? `located (${sigma})`
+      : `not located yet: ${last.modes.length} places fit the steps so far (the likeliest holds ${Math.round(100 * (last.modes[0]?.mass ?? 0))} %)`);
+    liveMsg.dataset.steps = String(pts.length - 1);
+    liveMsg.dataset.converged = String(last.converged);
+    setStep(track.steps.length - 1);
+  }
+
+  meBtn.addEventListener("click", async () => {
+    if (!fp || live) return;
+    const denied = await askMotionPermission(); // first: iOS asks only inside the tap
+    if (denied) return void (liveMsg.textContent = denied);
+    const start = parseStart(startField.value);
+    if (startField.value.trim() && !start) return void (liveMsg.textContent = "Start: give x,y in metres, or tap the map.");
+    meBtn.disabled = true;
+    liveMsg.textContent = "Loading the model…";
+    try {
+      const model = await floorModel(fp.id);
+      if (!alive) return;
+      const session = new LiveSession(model, { start });
+      stop();
+      let got = false;
+      const stopSensors = listenSensors({
+        motion: (t, ax, ay, az) => {
+          session.steps.addMotion(t, ax, ay, az);
+          if (!got) (got = true), (liveMsg.textContent = "Walk: steps appear as you go.");
+          if (session.update().length) showLive();
+        },
+        heading: (t, rad) => session.steps.addHeading(t, rad),
+        status: (text) => (liveMsg.dataset.source = text),
+      });
+      live = { session, stop: stopSensors };
+      stopBtn.disabled = false;
+      zoomed = start !== null; // a known start: follow the walk; else the whole floor, where the modes are
+      zoomBtn.textContent = zoomed ? "Whole floor" : "Zoom to walk";
+      showLive();
+      liveMsg.textContent = "Waiting for the motion sensors… hold the phone flat in front of you and walk.";
+    } catch (err) {
+      meBtn.disabled = false;
+      liveMsg.textContent = `Cannot track: ${describeError(err)}`;
+    }
+  });
+
+  stopBtn.addEventListener("click", () => {
+    if (!live) return;
+    live.session.update(true);
+    showLive(true);
+    stopLive();
   });
 
   (async () => {
@@ -301,6 +439,11 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       fp.status === "ready" ? h("span", {}, " · ", h("a", { href: mapsApi.modelUrl(fp.id), download: `floorplan-${fp.id}.npz`, "data-testid": "model-download" }, `download model (${kib(fp.model_bytes)})`)) : "",
     );
     trackBtn.disabled = fp.status !== "ready";
+    if (fp.status === "ready") {
+      // The model now, so that tracking starts at once and works offline from here on.
+      void floorModel(fp.id).catch(() => undefined);
+      keepForOffline(["/api/v1/auth/me", `/api/v1/floorplans/${fp.id}`, mapsApi.imageUrl(fp.id), mapsApi.modelUrl(fp.id)]);
+    }
     if (fp.status !== "ready") msg.textContent = fp.status === "failed" ? `The model failed: ${fp.error}` : "The model is being built; reload in a moment.";
     if (fp.has_image) {
       image = new Image();
@@ -315,5 +458,25 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   return () => {
     alive = false;
     stop();
+    stopLive();
   };
+}
+
+/** A live session's modes: a circle of the cluster radius each, labelled with its share of the mass. */
+function drawModes(c: CanvasRenderingContext2D, v: View, modes: Mode[]) {
+  c.font = "12px system-ui, sans-serif";
+  for (const m of modes.slice(0, 12)) {
+    const [x, y] = toPx(v, m.x, m.y);
+    c.beginPath();
+    c.arc(x, y, Math.max(5 * v.scale, 4), 0, 2 * Math.PI);
+    c.fillStyle = `rgba(217,119,6,${(0.15 + 0.6 * m.mass).toFixed(2)})`;
+    c.fill();
+    c.strokeStyle = "#b45309";
+    c.lineWidth = 1;
+    c.stroke();
+    if (m.mass >= 0.05) {
+      c.fillStyle = "#78350f";
+      c.fillText(`${Math.round(100 * m.mass)} %`, x + 6, y - 6);
+    }
+  }
 }

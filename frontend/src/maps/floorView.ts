@@ -29,7 +29,7 @@ export function fitBox(box: readonly [number, number, number, number], w: number
 export function walkBox(track: WalkTrack, margin_m = 8, minSide_m = 30): [number, number, number, number] {
   const xs: number[] = [];
   const ys: number[] = [];
-  for (const s of track.steps) xs.push(s.x_m, s.dr_x_m), ys.push(s.y_m, s.dr_y_m);
+  for (const s of track.steps) for (const [x, y] of [[s.x_m, s.y_m], [s.dr_x_m, s.dr_y_m]]) if (Number.isFinite(x) && Number.isFinite(y)) xs.push(x), ys.push(y);
   for (const w of track.errors.waypoints) xs.push(w.x_m), ys.push(w.y_m);
   let [x0, x1, y0, y1] = [Math.min(...xs) - margin_m, Math.max(...xs) + margin_m, Math.min(...ys) - margin_m, Math.max(...ys) + margin_m];
   const grow = (lo: number, hi: number): [number, number] => {
@@ -43,6 +43,19 @@ export function walkBox(track: WalkTrack, margin_m = 8, minSide_m = 30): [number
 
 export function toPx(v: View, x: number, y: number): [number, number] {
   return [v.ox + x * v.scale, v.heightPx - (v.oy + y * v.scale)];
+}
+
+/** Canvas pixels -> floor metres (the inverse of toPx). */
+export function fromPx(v: View, px: number, py: number): [number, number] {
+  return [(px - v.ox) / v.scale, (v.heightPx - py - v.oy) / v.scale];
+}
+
+/** "x,y" in metres -> [x, y], or null (empty or not two finite numbers). */
+export function parseStart(text: string): [number, number] | null {
+  const p = text.split(",").map((s) => s.trim());
+  if (p.length !== 2 || p.some((s) => !s)) return null;
+  const [x, y] = p.map(Number);
+  return Number.isFinite(x) && Number.isFinite(y) ? [x, y] : null;
 }
 
 /** The 2σ error ellipse in pixels: semi-axes and rotation (canvas radians, clockwise). */

@@ -6,8 +6,9 @@
  * browser offers it, else devicemotion + deviceorientation(absolute) events.
  *
  * Times are the sensor's own clock: each devicemotion sample is `interval` ms after the
- * previous one (or later, when the event's time stamp says samples were lost); headings
- * take the time of the newest motion sample.
+ * previous one, unless the events' time stamps are more than half a second further apart
+ * (samples lost, e.g. the page was in the background); headings take the time of the
+ * newest motion sample. (Event time stamps alone jitter with the page's own work.)
  */
 import { headingFromCompass, headingFromEuler, headingFromQuaternion } from "../tracker/live";
 
@@ -48,7 +49,7 @@ interface GenericSensor extends EventTarget {
 export function listenSensors(feed: SensorFeed): () => void {
   let source: "generic" | "events" | null = null;
   let clock = -Infinity; // ms of the newest motion sample
-  let base: number | null = null; // event time stamp of the first sample
+  let lastStamp = 0; // event time stamp of the newest motion sample
   let sawAbsolute = false;
   const stops: (() => void)[] = [];
 
@@ -63,9 +64,10 @@ export function listenSensors(feed: SensorFeed): () => void {
   const onMotion = (e: DeviceMotionEvent) => {
     const g = e.accelerationIncludingGravity;
     if (!g || g.x === null || g.y === null || g.z === null || !claim("events")) return;
-    base ??= e.timeStamp;
-    const stamped = e.timeStamp - base;
-    clock = clock === -Infinity ? 0 : Math.max(clock + (e.interval || 0), stamped);
+    const gap = e.timeStamp - lastStamp;
+    const dt = e.interval || gap;
+    clock = clock === -Infinity ? 0 : clock + (gap > dt + 500 ? gap : dt);
+    lastStamp = e.timeStamp;
     feed.motion(clock, g.x, g.y, g.z);
   };
   const onOrientation = (e: DeviceOrientationEvent) => {

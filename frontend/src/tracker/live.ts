@@ -128,7 +128,8 @@ export class LiveSession {
     opts: TrackerOptions = {},
   ) {
     this.tracker = new Tracker(model, opts);
-    this.dr = opts.start ? [opts.start[0], opts.start[1]] : [0, 0];
+    // Dead reckoning needs a start; without one there is none to draw (NaN).
+    this.dr = opts.start ? [opts.start[0], opts.start[1]] : [NaN, NaN];
     this.points.push(this.point({ t_ms: opts.t0_ms ?? 0, summary: this.tracker.summary(), vertex: -1 }));
   }
 
