@@ -33,21 +33,7 @@ FLOORS = {"site1": REPO / "data" / "indoor-site1-F1", "site2": REPO / "data" / "
 
 def floor_model(floor: Path):
     """The floor's model with every tracker term switched on (values are arbitrary but physical)."""
-    try:
-        model = build_model(floor, cell_m=0.8)
-    except ValueError:
-        # A floor the competition reader cannot read yet (site2's GeoJSON has no 'floor'
-        # feature): its image, white = walkable, stands in — parity needs a graph, not accuracy.
-        from PIL import Image
-
-        from posefix.mapmatch.floorplan import raster_from_image
-        from posefix.mapmatch.graph import build_graph
-        from posefix.mapmatch.model import Model
-
-        info = json.loads((floor / "floor_info.json").read_text())["map_info"]
-        width_px = Image.open(floor / "floor_image.png").size[0]
-        raster = raster_from_image(floor / "floor_image.png", m_per_px=float(info["width"]) / width_px)
-        model = Model(graph=build_graph(raster, cell_m=0.8))
+    model = build_model(floor, cell_m=0.8)
     return model.with_(step_model=replace(model.step_model, height_m=1.75, heading_bias_rad=0.07),
                        weights={"f1": 0.8, "f2": 0.4, "f3": 1.0, "f4": 0.5})
 
