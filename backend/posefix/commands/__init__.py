@@ -1,0 +1,1 @@
+"""The command areas of the ``posefix`` CLI, assembled by ``posefix.cli``."""

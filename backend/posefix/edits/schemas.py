@@ -1,3 +1,5 @@
+"""Request and response bodies of the API for previews, edit batches, revisions and diffs (pydantic)."""
+
 from __future__ import annotations
 
 import datetime as dt

@@ -1,0 +1,1 @@
+"""Background jobs: the job table, the handler registry, job status and the server-sent event stream."""

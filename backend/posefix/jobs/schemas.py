@@ -1,3 +1,5 @@
+"""Request and response bodies of the API for jobs (pydantic)."""
+
 from __future__ import annotations
 
 import datetime as dt

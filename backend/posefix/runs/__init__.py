@@ -1,0 +1,1 @@
+"""Runs on the web: upload and import, storage, keyframes and exports, revisions, images, who may see what."""

@@ -1,3 +1,5 @@
+"""Request and response bodies of the API for runs, revisions and images (pydantic)."""
+
 from __future__ import annotations
 
 import datetime as dt

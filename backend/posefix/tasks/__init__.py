@@ -1,0 +1,1 @@
+"""Crowd tasks (HITs): the queue and leases, submissions, consensus, review, merge, qualification and gold runs."""

@@ -1,3 +1,5 @@
+"""Request and response bodies of the API for tasks, assignments, reviews, operators and gold runs (pydantic)."""
+
 from __future__ import annotations
 
 import datetime as dt

@@ -1,3 +1,5 @@
+"""Request and response bodies of the API for accounts, logins and tokens (pydantic)."""
+
 from __future__ import annotations
 
 import datetime as dt

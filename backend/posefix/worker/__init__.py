@@ -1,0 +1,1 @@
+"""The worker process that claims and runs background jobs."""
