@@ -3,8 +3,9 @@
     python -m benchmarks.server [--quick] [--postgres [ADMIN_URL] | --database-url URL] [--workers N]
                                 [--operators N] [--load-s S] [--generator-processes P]
 
-Starts ``posefix serve`` (its own process; on SQLite one uvicorn process with the embedded job
-worker, on PostgreSQL ``--workers`` uvicorn processes and a ``posefix worker`` process) on a
+Starts ``posefix serve`` (its own process: ``--workers`` uvicorn processes, by default one per
+core as ``posefix serve`` does; on SQLite with its job worker beside them, a thread with one
+process and a process with several; on PostgreSQL a separate ``posefix worker`` process) on a
 fresh data directory, then measures, as a client would see it:
 
 - import: upload of a one-hour 100 Hz run (360,001 samples, 3,601 keyframes) as CSV, from
@@ -495,8 +496,8 @@ def main() -> None:
     parser.add_argument("--postgres", nargs="?", const="postgresql+psycopg://postgres@127.0.0.1:5432/test", default="",
                         metavar="ADMIN_URL", help="a fresh PostgreSQL database made (and dropped) on this server "
                         "(default postgresql+psycopg://postgres@127.0.0.1:5432/test)")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="uvicorn worker processes of the server (PostgreSQL only; one per core on a dedicated machine)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="uvicorn worker processes of the server (default: posefix serve's, one per core)")
     parser.add_argument("--operators", type=int, default=None, help="simulated operators (default 50; quick 10)")
     parser.add_argument("--load-s", type=float, default=None, help="load duration in s (default 60; quick 10)")
     parser.add_argument("--keep", action="store_true", help="keep the temporary data directory")
@@ -512,8 +513,9 @@ def main() -> None:
     pg_name = ""
     if args.postgres:
         args.database_url, pg_name = create_postgres_database(args.postgres)
-    if args.workers > 1 and not args.database_url:
-        parser.error("--workers above 1 needs PostgreSQL (--postgres or --database-url)")
+    from posefix.serving import default_http_processes
+
+    args.workers = args.workers or default_http_processes()
     env = {
         "POSEFIX_DATA_DIR": str(workdir / "var"),
         "POSEFIX_ENVIRONMENT": "development",
@@ -532,7 +534,7 @@ def main() -> None:
         if args.database_url:
             job_worker = start_worker(env, workdir / "worker.log")
         print(f"· server: {args.workers} uvicorn process(es) on {'PostgreSQL' if args.database_url else 'SQLite'}, "
-              f"job worker {'process' if args.database_url else 'embedded'}", flush=True)
+              f"job worker {'process' if args.database_url or args.workers > 1 else 'thread'}", flush=True)
         admin = login(base, *ADMIN)
 
         print(f"· simulating a {duration_s / 60:.0f} min {rate_hz:g} Hz run", flush=True)

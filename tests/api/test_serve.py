@@ -1,4 +1,5 @@
-"""`posefix serve` on SQLite: migrates, serves, and its embedded worker writes revisions."""
+"""`posefix serve` on SQLite: migrates, serves, and its job worker writes revisions, with one HTTP
+process (the worker a thread in it) and with two (the worker its own process)."""
 
 from __future__ import annotations
 
@@ -17,13 +18,19 @@ from tests.conftest import drive_csv
 POSEFIX = str(Path(sys.executable).parent / "posefix")
 
 
+def child_commands(pid: int) -> list[str]:
+    kids = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    return [Path(f"/proc/{k}/cmdline").read_bytes().replace(b"\0", b" ").decode() for k in kids]
+
+
 @pytest.mark.slow
-def test_serve_with_embedded_worker(tmp_path):
+@pytest.mark.parametrize("processes", [1, 2])
+def test_serve_with_embedded_worker(tmp_path, processes):
     env = {**os.environ, "POSEFIX_DATA_DIR": str(tmp_path / "var"), "POSEFIX_ENVIRONMENT": "development",
            "POSEFIX_LOG_LEVEL": "WARNING", "POSEFIX_WORKER_POLL_S": "0.1"}
     env.pop("POSEFIX_DATABASE_URL", None)
     port = free_port()
-    proc = subprocess.Popen([POSEFIX, "serve", "--port", str(port)], env=env, cwd=tmp_path,
+    proc = subprocess.Popen([POSEFIX, "serve", "--port", str(port), "--workers", str(processes)], env=env, cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
@@ -53,6 +60,12 @@ def test_serve_with_embedded_worker(tmp_path):
             time.sleep(0.2)
         assert httpx.get(f"{base}/api/v1/runs/{rid}", headers=h, timeout=60).json()["revision"] == 1
         assert (tmp_path / "var" / "posefix.sqlite").exists()
+        kids = child_commands(proc.pid)
+        job_workers = [c for c in kids if "main(['worker'])" in c]
+        if processes == 1:
+            assert job_workers == [], kids
+        else:  # the HTTP processes and the job worker beside them
+            assert len(job_workers) == 1 and len(kids) >= 3, kids
     finally:
         proc.terminate()
         proc.wait(timeout=30)

@@ -48,15 +48,15 @@ def demo(
         typer.echo(f"  {account.role:<9} {account.username:<10} password: {account.password}")
     if not serve:
         return
-    import uvicorn
-
-    from posefix.main import create_app
+    from posefix.serving import default_http_processes, run_server
 
     url_host = "localhost" if host in ("0.0.0.0", "127.0.0.1", "::") else host
-    application = create_app(settings, embedded_worker=True)
+    processes = default_http_processes()
     typer.echo("")
-    typer.echo(f"posefix demo: open http://{url_host}:{port}/ and log in as operator1 (Ctrl-C stops)")
-    uvicorn.run(application, host=host, port=port, proxy_headers=True, log_config=None)
+    typer.echo(f"posefix demo: open http://{url_host}:{port}/ and log in as operator1 (Ctrl-C stops; "
+               f"{processes} HTTP process(es) and a job worker)")
+    env = {"POSEFIX_DATA_DIR": str(Path(settings.data_dir).resolve()), "POSEFIX_OPERATORS_SEE_ALL_RUNS": "true"}
+    run_server(settings, host=host, port=port, processes=processes, job_worker=True, env=env)
 
 
 @basemap_app.command("build")

@@ -80,8 +80,10 @@ def users_create(
 def serve(
     host: Annotated[str, typer.Option(help="address to listen on")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="port")] = 8000,
-    workers: Annotated[int, typer.Option(help="HTTP worker processes (PostgreSQL only)")] = 1,
-    embedded_worker: Annotated[bool | None, typer.Option(help="run a job worker thread in the server (default: on SQLite)")] = None,
+    workers: Annotated[int | None, typer.Option(help="HTTP processes (default: one per core)", min=1)] = None,
+    embedded_worker: Annotated[bool | None, typer.Option(help=(
+        "run a job worker with the server: a thread with one HTTP process, its own process with several "
+        "(default: on SQLite)"))] = None,
     migrate: Annotated[bool, typer.Option(help="apply migrations before starting")] = True,
     keep_alive_s: Annotated[int, typer.Option(help=(
         "seconds an idle connection stays open; longer than clients keep idle pooled connections "
@@ -89,26 +91,19 @@ def serve(
 ) -> None:
     """Serve the API and the front end (and, on SQLite, the job worker)."""
     single_threaded_blas()  # concurrent small solves: BLAS threads would only spin against each other
-    import uvicorn
-
     from posefix.config import Settings
     from posefix.db import upgrade_database
-    from posefix.main import create_app
+    from posefix.serving import default_http_processes, run_server
 
     settings = Settings()
     if migrate:
         upgrade_database(settings.resolved_database_url)
     embedded = settings.is_sqlite and settings.embedded_worker if embedded_worker is None else embedded_worker
-    if workers > 1:
-        if settings.is_sqlite:
-            typer.echo("error: several HTTP workers need PostgreSQL", err=True)
-            raise typer.Exit(2)
-        uvicorn.run("posefix.main:create_app", factory=True, host=host, port=port, workers=workers, proxy_headers=True, log_config=None,
-                    timeout_keep_alive=keep_alive_s)
-        return
-    application = create_app(settings, embedded_worker=embedded)
-    typer.echo(f"posefix serving on http://{host}:{port}/ ({'embedded worker, ' if embedded else ''}{settings.resolved_database_url.split('://')[0]})")
-    uvicorn.run(application, host=host, port=port, proxy_headers=True, log_config=None, timeout_keep_alive=keep_alive_s)
+    processes = workers or default_http_processes()
+    worker_txt = ("job worker thread, " if processes == 1 else "job worker process, ") if embedded else ""
+    typer.echo(f"posefix serving on http://{host}:{port}/ ({processes} HTTP process(es), {worker_txt}"
+               f"{settings.resolved_database_url.split('://')[0]})")
+    run_server(settings, host=host, port=port, processes=processes, job_worker=embedded, keep_alive_s=keep_alive_s)
 
 
 @app.command("worker")
