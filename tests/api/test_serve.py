@@ -34,7 +34,7 @@ def test_serve_with_embedded_worker(tmp_path, processes):
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 90
+        deadline = time.monotonic() + 180  # several processes start on a shared machine
         while True:
             try:
                 if httpx.get(f"{base}/readyz", timeout=2).status_code == 200:
