@@ -74,6 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--wifi-corr-s", type=float, metavar="S", default=None,
                     help="correlation time of WiFi errors for the discount of f3/f4 (s; default the "
                          "model's, 20; 0 = every scan independent, the behaviour before the discount)")
+    ap.add_argument("--no-browser", action="store_true", help="skip the browser tracker's block (benchmarks.browser_tracker)")
     ap.add_argument("--suggest", action="store_true",
                     help="only time suggestions on the demo's 10 min drive (cache cleared vs repeated)")
     args = ap.parse_args(argv)
@@ -198,6 +199,11 @@ def main(argv: list[str] | None = None) -> int:
         draw_figure(base, walks[0], args.figure)
         print(f"figure -> {args.figure}")
     print("\nTargets: (b) mean ≤ 2.0 m, p95 ≤ 4.0 m; (c)/(d) mean ≤ 3.0 m; ≤ 2 ms per step. Ratio > 1 misses the target.")
+    if not args.no_browser:
+        # The device path: the same tracker in the browser (benchmarks/browser_tracker.py, its own module).
+        from benchmarks.browser_tracker import print_browser_block
+
+        print_browser_block(floor)
     return 0
 
 

@@ -4,10 +4,10 @@
  * weighted transition scores and state (V,) its weighted state scores (or none):
  *
  *   Viterbi:  δ_t(v) = max_k δ_{t−1}(pred[k][v]) + trans[k] + state(v)      (back-pointer: the arg-max k)
- *   Forward:  α_t(v) = log Σ_k e^{α_{t−1}(pred[k][v]) + trans[k]} + state(v)  (linear domain, scaled by the maxima)
+ *   Forward:  α_t(v) = log Σ_k e^{α_{t−1}(pred[k][v]) + trans[k]} + state(v)  (kept as e^{α − max α})
  *   Beam:     entries more than `beam` nats below the column's best are dropped (−∞)
  *
- * and the Gaussian summary of a column log p (V,): w_v = p_v / Σp (entries within 20 nats
+ * and the Gaussian summary of a distribution p (V,): w_v = p_v / Σp (entries within 20 nats
  * of the best), μ = Σ w_v p_v, Σ = Σ w_v (p_v − μ)(p_v − μ)ᵀ + σ_min² I, with its 1σ
  * semi-axes (eigenvalues) and the major axis' angle, counter-clockwise from east.
  */
@@ -203,39 +203,53 @@ export class ViterbiFilter {
   }
 }
 
+/**
+ * The forward filter kept in the linear domain, scaled so that its largest entry is 1:
+ * lin = e^{α − max α}. A step without state scores needs no exponential or logarithm
+ * (the transition maximum cancels in the scaling); with state scores the row goes
+ * through the log domain as in Python, so a far WiFi fix cannot underflow every entry.
+ */
 export class ForwardFilter {
-  alpha: Column;
+  lin: Float64Array; // [n] = 0: the sentinel
+  live: Int32Array;
+  private next: Float64Array;
+  private liveBufs: [Int32Array, Int32Array];
   private readonly mark: Uint8Array;
-  private readonly lin: Float64Array; // e^{α − top} on the live vertices, 0 elsewhere
   private readonly acc: Float64Array;
-  private readonly bufs: PingPong;
-  private readonly norm: Float64Array;
+  private readonly floor: number;
 
   constructor(
     readonly g: Graph,
     logPrior: Float64Array,
     readonly beam: number | null,
   ) {
-    this.bufs = new PingPong(g.n);
-    const first = this.bufs.next({ val: new Float64Array(0), live: new Int32Array(0) });
-    first.set(logPrior);
-    this.alpha = pruned(first, null, g.n, beam);
-    this.mark = new Uint8Array(g.n);
-    this.lin = new Float64Array(g.n + 1); // [n] = 0: the sentinel
-    this.acc = new Float64Array(g.n);
-    this.norm = new Float64Array(g.n + 1);
+    const n = g.n;
+    this.floor = beam === null ? 0 : Math.exp(-beam);
+    this.lin = new Float64Array(n + 1);
+    this.next = new Float64Array(n + 1);
+    this.liveBufs = [new Int32Array(n), new Int32Array(n)];
+    let top = NEG;
+    for (let v = 0; v < n; v++) if (logPrior[v] > top) top = logPrior[v];
+    const thr = beam === null ? NEG : top - beam;
+    let c = 0;
+    const live = this.liveBufs[0];
+    for (let v = 0; v < n; v++) {
+      if (logPrior[v] > NEG && logPrior[v] >= thr) {
+        this.lin[v] = Math.exp(logPrior[v] - top);
+        live[c++] = v;
+      }
+    }
+    this.live = live.subarray(0, c);
+    this.mark = new Uint8Array(n);
+    this.acc = new Float64Array(n);
   }
 
   step(trans: Float64Array, state: Float64Array | null): void {
     const { g } = this;
     const n = g.n;
     const k = g.k;
-    const cand = candidates(g, this.alpha, this.beam, this.mark);
-    const al = this.alpha;
-    let top = NEG;
-    for (const v of al.live) if (al.val[v] > top) top = al.val[v];
+    const cand = candidates(g, { val: this.lin, live: this.live }, this.beam, this.mark);
     const a = this.lin;
-    for (const v of al.live) a[v] = Math.exp(al.val[v] - top);
     let tTop = NEG;
     for (let j = 0; j < k; j++) if (trans[j] > tTop) tTop = trans[j];
     const e = new Float64Array(k);
@@ -263,64 +277,84 @@ export class ForwardFilter {
         for (let i = 0; i < n; i++) acc[i] += a[pt[row + i]] * ej;
       }
     }
-    const off = top + tTop;
-    const out = this.bufs.next(al);
-    let best = NEG;
+    let best = 0;
+    if (state) {
+      // log domain: log(acc) + state, as the Python filter does it
+      best = NEG;
+      for (let i = 0; i < m; i++) {
+        const x = Math.log(acc[i]) + state[cand ? cand[i] : i];
+        acc[i] = x;
+        if (x > best) best = x;
+      }
+      if (!(best > NEG)) return; // every path hit a wall: keep the belief
+      for (let i = 0; i < m; i++) acc[i] = Math.exp(acc[i] - best);
+    } else {
+      for (let i = 0; i < m; i++) if (acc[i] > best) best = acc[i];
+      if (!(best > 0)) return;
+      for (let i = 0; i < m; i++) acc[i] /= best;
+    }
+    const out = this.next;
+    const liveOut = this.liveBufs[this.live.buffer === this.liveBufs[0].buffer ? 1 : 0];
+    let c = 0;
     for (let i = 0; i < m; i++) {
-      const v = cand ? cand[i] : i;
-      let x = Math.log(acc[i]) + off;
-      if (state) x += state[v];
-      out[v] = x;
-      if (x > best) best = x;
+      const x = acc[i];
+      if (x > 0 && x >= this.floor) {
+        const v = cand ? cand[i] : i;
+        out[v] = x;
+        liveOut[c++] = v;
+      }
     }
-    for (const v of al.live) a[v] = 0;
-    if (!(best > NEG)) {
-      for (let i = 0; i < m; i++) out[cand ? cand[i] : i] = NEG;
-      return; // every path hit a wall: keep the belief
-    }
-    for (let i = 0; i < m; i++) out[cand ? cand[i] : i] -= best;
-    this.alpha = pruned(out, cand, n, this.beam);
-    this.bufs.release(al, this.alpha);
+    for (const v of this.live) a[v] = 0;
+    this.next = a;
+    this.lin = out;
+    this.live = liveOut.subarray(0, c);
   }
 
-  /** The filtered marginal, log-normalised (valid on its live vertices only; read it before the next step). */
-  column(): Column {
-    const c = this.alpha;
-    let top = NEG;
-    for (const v of c.live) if (c.val[v] > top) top = c.val[v];
+  /** The filtered marginal as probabilities on the live vertices (sum 1). */
+  probabilities(): { p: Float64Array; live: Int32Array } {
     let s = 0;
-    for (const v of c.live) s += Math.exp(c.val[v] - top);
-    const kk = top + Math.log(s);
-    for (const v of c.live) this.norm[v] = c.val[v] - kk;
-    return { val: this.norm, live: c.live };
+    for (const v of this.live) s += this.lin[v];
+    const p = new Float64Array(this.live.length);
+    this.live.forEach((v, i) => (p[i] = this.lin[v] / s));
+    return { p, live: this.live };
   }
 }
 
 /** Moment-matched Gaussian of a log column over the graph's vertices (see the module docstring). */
-export function gaussianSummary(g: Graph, c: Column, minSigma: number, cutNats = 20): Summary {
-  let top = NEG;
-  for (const v of c.live) if (c.val[v] > top) top = c.val[v];
-  const thr = top - cutNats;
-  const sel = c.live.filter((v) => c.val[v] > thr);
-  const w = new Float64Array(sel.length);
+/**
+ * Moment-matched Gaussian of a distribution over the graph's vertices, from weights on the
+ * live vertices (any scale; entries under e^{−20} of the largest are left out).
+ */
+export function gaussianSummary(g: Graph, w: Float64Array, live: Int32Array, minSigma: number, cutNats = 20): Summary {
+  const m = live.length;
+  let top = 0;
+  for (let i = 0; i < m; i++) if (w[live[i]] > top) top = w[live[i]];
+  const thr = top * Math.exp(-cutNats);
   let s = 0;
-  sel.forEach((v, i) => (s += w[i] = Math.exp(c.val[v] - top)));
-  let mx = 0;
-  let my = 0;
-  for (let i = 0; i < sel.length; i++) {
-    w[i] /= s;
-    mx += w[i] * g.px[sel[i]];
-    my += w[i] * g.py[sel[i]];
+  let sx = 0;
+  let sy = 0;
+  for (let i = 0; i < m; i++) {
+    const v = live[i];
+    const x = w[v];
+    if (!(x > thr)) continue;
+    s += x;
+    sx += x * g.px[v];
+    sy += x * g.py[v];
   }
+  const mx = sx / s;
+  const my = sy / s;
   let cxx = 0;
   let cxy = 0;
   let cyy = 0;
-  for (let i = 0; i < sel.length; i++) {
-    const dx = g.px[sel[i]] - mx;
-    const dy = g.py[sel[i]] - my;
-    cxx += dx * w[i] * dx;
-    cxy += dx * w[i] * dy;
-    cyy += dy * w[i] * dy;
+  for (let i = 0; i < m; i++) {
+    const v = live[i];
+    if (!(w[v] > thr)) continue;
+    const x = w[v] / s;
+    const dx = g.px[v] - mx;
+    const dy = g.py[v] - my;
+    cxx += dx * x * dx;
+    cxy += dx * x * dy;
+    cyy += dy * x * dy;
   }
   cxx += minSigma * minSigma;
   cyy += minSigma * minSigma;

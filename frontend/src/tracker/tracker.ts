@@ -219,21 +219,20 @@ export class Tracker {
 
   /** Gaussian summary of the live (filtered) distribution. */
   summary(): Summary {
-    return gaussianSummary(this.model.graph, this.forward.column(), this.minSigma);
+    return gaussianSummary(this.model.graph, this.forward.lin, this.forward.live, this.minSigma);
   }
 
   /** The live distribution's modes: greedy clusters of `radius_m` around the likeliest vertices, covering `coverage` of the mass. */
   modes(radius_m = 5, coverage = 0.99): Mode[] {
     const g = this.model.graph;
-    const col = this.forward.column();
-    const live = Array.from(col.live);
+    const { p: probs, live: liveV } = this.forward.probabilities();
+    const live = Array.from(liveV);
     const p = new Map<number, number>();
     let total = 0;
-    for (const v of live) {
-      const x = Math.exp(col.val[v]);
-      p.set(v, x);
-      total += x;
-    }
+    live.forEach((v, i) => {
+      p.set(v, probs[i]);
+      total += probs[i];
+    });
     live.sort((a, b) => p.get(b)! - p.get(a)! || a - b);
     const seeds: { v: number; mass: number; sx: number; sy: number }[] = [];
     let covered = 0;
