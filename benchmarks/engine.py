@@ -278,21 +278,23 @@ def print_warm(w) -> None:
 
 
 def bench_preview(k: int = 3600, seed: int = 9):
-    """Live drag: the same keyframe moved 20 times by small steps, each warm-started."""
-    from posefix.engine import KeyframeEdit
+    """Live drag as the server answers it (``Problem.preview``): the same keyframe moved 20 times
+    by small steps on a base revision holding the other edits, each frame warm from the last."""
+    from posefix.engine import Edit, Edits
 
     sim = simulate(duration_s=k - 1, rate_hz=1.0, edit_every_s=100.0, seed=seed, regime="mixed")
     problem = prepare(sim.run)
     idx = problem.keyframe_index
-    fixed = [KeyframeEdit(int(np.searchsorted(idx, e.index)), e.lon_deg, e.lat_deg) for e in sim.edits[:-1]]
+    base_edits = Edits(tuple(Edit(int(np.searchsorted(idx, e.index)), e.lon_deg, e.lat_deg) for e in sim.edits[:-1]))
+    base = problem.solve_edits(base_edits)
     drag_kf = int(np.searchsorted(idx, sim.edits[-1].index))
     lon0, lat0 = sim.edits[-1].lon_deg, sim.edits[-1].lat_deg
-    prev = problem.preview(fixed).solution
+    prev = None
     times = []
     for step in range(20):
-        move = KeyframeEdit(drag_kf, lon0 + 2e-6 * step, lat0 + 1e-6 * step)
+        move = Edit(drag_kf, lon0 + 2e-6 * step, lat0 + 1e-6 * step)
         t0 = time.perf_counter()
-        pv = problem.preview(fixed + [move], warm_start=prev)
+        pv = problem.preview([move], base_edits=base_edits, base=base, warm_start=prev)
         times.append(time.perf_counter() - t0)
         prev = pv.solution
     return dict(k=k, p50=float(np.percentile(times, 50)), p95=float(np.percentile(times, 95)))

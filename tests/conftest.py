@@ -100,10 +100,10 @@ def _empty_tables(url: str) -> None:
 @pytest.fixture
 def settings(db_url: str, tmp_path: Path) -> Any:
     from posefix.config import Settings
-    from posefix.runs import correction, service
+    from posefix.runs import service, solutions
 
     _empty_tables(db_url)
-    correction.PROBLEMS.forget_all()
+    solutions.PROBLEMS.forget_all()
     service.GEOJSON_CACHE.clear()
     return Settings(
         environment="test", database_url=db_url, data_dir=tmp_path / "var", log_level="WARNING",

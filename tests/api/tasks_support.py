@@ -181,10 +181,10 @@ def shifted(lon: float, lat: float, east_m: float, north_m: float) -> tuple[floa
 
 def build_env(tmp_path: Path, url: str) -> Env:
     """The app on an already migrated database (see fresh_pg_url / fresh_sqlite_url)."""
-    from posefix.runs import correction, service
+    from posefix.runs import service, solutions
 
     # The solver caches are per process and keyed by run id: every test's run 1 is another run.
-    correction.PROBLEMS.forget_all()
+    solutions.PROBLEMS.forget_all()
     service.GEOJSON_CACHE.clear()
     settings = Settings(environment="test", database_url=url, data_dir=tmp_path / "var", log_json=False,
                         log_level="WARNING", embedded_worker=False)

@@ -8,6 +8,7 @@ import io
 import numpy as np
 from sqlalchemy import update
 
+from posefix.core import geodesy
 from posefix.runs.models import Run
 from tests.conftest import drive_csv, upload, wait_job
 
@@ -51,7 +52,7 @@ class TestPreview:
     def test_preview_of_a_revision_is_local_not_a_full_solve(self, client, users, app):
         import time
 
-        from posefix.runs import correction
+        from posefix.runs import solutions
 
         rid = new_run(client, users, n=10000)  # 1,001 keyframes: the window around a drag is under half
         _, xy0 = kf_coords(client, users["admin"], rid)
@@ -64,7 +65,7 @@ class TestPreview:
         fc, xy = kf_coords(client, users["admin"], rid)  # opening the revision loads its solution in the background
         assert fc["revision"] == 1
         deadline = time.monotonic() + 60
-        while correction.PROBLEMS.solution(rid, fc["rules"], 1) is None:
+        while solutions.PROBLEMS.solution(rid, fc["rules"], 1) is None:
             assert time.monotonic() < deadline
             time.sleep(0.05)
         for k in (500, 150, 850):  # each the first new edit of the revision: drift would reach the whole run
@@ -84,12 +85,12 @@ class TestPreview:
     def test_the_first_drag_of_an_unedited_revision_is_local(self, client, users):
         import time
 
-        from posefix.runs import correction
+        from posefix.runs import solutions
 
         rid = new_run(client, users, n=10000)
         fc, xy = kf_coords(client, users["admin"], rid)  # opening revision 0 warms its solution and drag base
         deadline = time.monotonic() + 60
-        while correction.PROBLEMS.solution(rid, fc["rules"], 0) is None:
+        while solutions.PROBLEMS.solution(rid, fc["rules"], 0) is None:
             assert time.monotonic() < deadline
             time.sleep(0.05)
         for k in (500, 150):
@@ -108,7 +109,7 @@ class TestPreview:
 
         from posefix.core.simulate import simulate
         from posefix.io.csv import write_csv
-        from posefix.runs import correction
+        from posefix.runs import solutions
 
         sim = simulate(duration_s=1200.0, rate_hz=2.0, edit_every_s=100.0, seed=11, regime="canyon_ins")
         write_csv(sim.run, tmp_path / "run.csv")
@@ -124,7 +125,7 @@ class TestPreview:
         fc, xy = kf_coords(client, users["admin"], rid)
         assert fc["revision"] == 1 and fc["drift"]["gnss_levels"] is True, fc["drift"]
         deadline = time.monotonic() + 60
-        while correction.PROBLEMS.solution(rid, fc["rules"], 1) is None:
+        while solutions.PROBLEMS.solution(rid, fc["rules"], 1) is None:
             assert time.monotonic() < deadline
             time.sleep(0.05)
         k = 300
@@ -147,12 +148,12 @@ class TestPreview:
     def test_preview_with_deletions_after_the_revision_is_solved(self, client, users):
         import time
 
-        from posefix.runs import correction
+        from posefix.runs import solutions
 
         rid = new_run(client, users)
         fc, xy = kf_coords(client, users["admin"], rid)
         deadline = time.monotonic() + 60
-        while correction.PROBLEMS.solution(rid, fc["rules"], 0) is None:  # the base solution is cached
+        while solutions.PROBLEMS.solution(rid, fc["rules"], 0) is None:  # the base solution is cached
             assert time.monotonic() < deadline
             time.sleep(0.05)
         # Deleting keyframes drops rows from the solve: the base drift estimate no longer lines up.
@@ -358,21 +359,21 @@ class TestPreviewCache:
     def test_keyframes_request_presolves_head_revision_for_editors(self, client, users):
         import time
 
-        from posefix.runs import correction
+        from posefix.runs import solutions
 
         rid = new_run(client, users)
         run = client.get(f"/api/v1/runs/{rid}", headers=users["client"]).json()
         client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["client"])
         time.sleep(0.3)
-        assert correction.PROBLEMS.solution(rid, run["rules"], 0) is None  # a client does not edit
+        assert solutions.PROBLEMS.solution(rid, run["rules"], 0) is None  # a client does not edit
         client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["admin"])
         deadline = time.monotonic() + 30
-        while correction.PROBLEMS.solution(rid, run["rules"], 0) is None:
+        while solutions.PROBLEMS.solution(rid, run["rules"], 0) is None:
             assert time.monotonic() < deadline
             time.sleep(0.05)
 
     def test_drag_frames_agree_with_a_cold_solve(self, client, users, app):
-        from posefix.runs import correction
+        from posefix.runs import solutions
 
         rid = new_run(client, users)
         _, xy = kf_coords(client, users["admin"], rid)
@@ -380,10 +381,10 @@ class TestPreviewCache:
         for i in range(4):
             m = {"index": 30, "lon": xy[30, 0] + (2 + i) * METRE_LON, "lat": xy[30, 1]}
             frames.append(client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [m]}, headers=users["admin"]).json())
-        correction.PROBLEMS.forget_all()
+        solutions.PROBLEMS.forget_all()
         cold = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [m]}, headers=users["admin"]).json()
         a, b = np.array(frames[-1]["positions"]), np.array(cold["positions"])
-        diff_m = correction.horizontal_distance_m(a[:, 0], a[:, 1], b[:, 0], b[:, 1]).max()
+        diff_m = geodesy.horizontal_distance_m(a[:, 0], a[:, 1], b[:, 0], b[:, 1]).max()
         assert diff_m < 0.05
 
 
@@ -398,7 +399,7 @@ class TestStoredSolution:
         return r.json()
 
     def test_revision_solution_written_by_worker_and_loaded_by_a_fresh_process(self, client, users, app, settings):
-        from posefix.runs import correction, storage
+        from posefix.runs import solutions, storage
         from posefix.runs.models import Revision
 
         rid = new_run(client, users)
@@ -412,33 +413,33 @@ class TestStoredSolution:
         assert (settings.files_dir / storage.solution_rel(kf_file)).is_file()
         _, xy1 = kf_coords(client, users["admin"], rid, revision=1)
         warm = self.preview(client, users, rid, 1, xy1)
-        correction.PROBLEMS.forget_all()  # as in another API process
+        solutions.PROBLEMS.forget_all()  # as in another API process
         fresh = self.preview(client, users, rid, 1, xy1)
         assert fresh["preview"]["base_solved_in_request"] is False
         assert np.abs(np.array(fresh["positions"]) - np.array(warm["positions"])).max() < 1e-7
 
     def test_first_solve_of_a_revision_is_stored_for_the_others(self, client, users, settings):
-        from posefix.runs import correction
+        from posefix.runs import solutions
 
         rid = new_run(client, users)
         _, xy = kf_coords(client, users["client"], rid)  # a client's view does not pre-solve
         first = self.preview(client, users, rid, 0, xy)
         assert first["preview"]["base_solved_in_request"] is True
         assert len(list((settings.files_dir / "runs" / str(rid)).glob("r0-*.solution.npz"))) == 1
-        correction.PROBLEMS.forget_all()
+        solutions.PROBLEMS.forget_all()
         again = self.preview(client, users, rid, 0, xy)
         assert again["preview"]["base_solved_in_request"] is False
         assert np.abs(np.array(again["positions"]) - np.array(first["positions"])).max() < 1e-7
 
     def test_solution_of_another_configuration_is_not_used(self, tmp_path):
-        from posefix.engine import CorrectionConfig, prepare
+        from posefix.engine import CorrectionConfig, Edits, prepare
         from posefix.io import read_run
-        from posefix.runs import correction, storage
+        from posefix.runs import solutions, storage
 
         path = tmp_path / "drive.csv"
         path.write_bytes(drive_csv(300))
         problem = prepare(read_run(path), CorrectionConfig())
-        sol = correction.solve(problem, correction.EMPTY_EDIT_SET)
+        sol = problem.solve_edits(Edits())
         fs = storage.FileStore(tmp_path / "files")
         storage.write_solution(fs, "runs/1/r0-x.solution.npz", sol, "config-a")
         back = storage.read_solution(fs, "runs/1/r0-x.solution.npz", "config-a")

@@ -268,7 +268,7 @@ def test_level_jumps_are_found_where_the_fix_jumps_and_not_in_a_smooth_wander():
 
 
 def test_level_smoother_matches_the_dense_solution_and_recovers_the_pose_error():
-    from posefix.core.drift import _level_blocks, find_level_jumps, solve_levels
+    from posefix.core.drift.levels import _level_blocks, find_level_jumps, solve_levels
 
     t, e, c, u, GnssLevels = _levels_problem(k=120)
     u = u.copy()

@@ -9,7 +9,7 @@ from posefix.core import geodesy
 from posefix.core.config import ConfigError
 from posefix.core.run import PoseRun
 from posefix.core.simulate import simulate
-from posefix.engine import CorrectionConfig, EditRefusedError, KeyframeEdit, correct, prepare
+from posefix.engine import CorrectionConfig, EditRefusedError, Edit, correct, prepare
 from posefix.io.edits import EditSet, Move
 from tests.unit.engine_helpers import curvy_drive
 
@@ -135,13 +135,13 @@ def test_preview_answers_at_keyframe_level_with_warm_start():
     problem = prepare(run)
     kf = problem.keyframe_index
     lat, lon, _ = geodesy.enu_to_geodetic(p[kf[60]][None] + [3.0, 0.0, 0.0], ORIGIN)
-    first = problem.preview([KeyframeEdit(60, float(lon[0]), float(lat[0]))])
+    first = problem.preview([Edit(60, float(lon[0]), float(lat[0]))])
     assert first.refusals == [] and len(first.lon_deg) == len(kf)
     lat2, lon2, _ = geodesy.enu_to_geodetic(p[kf[60]][None] + [3.2, 0.1, 0.0], ORIGIN)
-    second = problem.preview([KeyframeEdit(60, float(lon2[0]), float(lat2[0])), KeyframeEdit(999, 0.0, 0.0)],
+    second = problem.preview([Edit(60, float(lon2[0]), float(lat2[0])), Edit(999, 0.0, 0.0)],
                              warm_start=first.solution)
     assert [r.reason for r in second.refusals] == ["out_of_range"]
-    cold = problem.preview([KeyframeEdit(60, float(lon2[0]), float(lat2[0]))])
+    cold = problem.preview([Edit(60, float(lon2[0]), float(lat2[0]))])
     assert second.solution.solver.iterations <= cold.solution.solver.iterations
     assert abs(second.solution.solver.cost - cold.solution.solver.cost) <= 1e-6 * cold.solution.solver.cost
 

@@ -302,3 +302,13 @@ def quat_local_enu_to_origin_enu(lat_deg, lon_deg, origin: OriginLike) -> np.nda
     q_l = quat_ecef_to_enu(lat_deg, lon_deg)
     q_l_inv = q_l * np.array([1.0, -1.0, -1.0, -1.0])
     return _quat_mul(q_o, q_l_inv)
+
+
+def horizontal_distance_m(lon1: np.ndarray, lat1: np.ndarray, lon2: np.ndarray, lat2: np.ndarray) -> np.ndarray:
+    """Great-circle distance on the mean sphere (for display: corrections of metres)."""
+    r = 6371008.8
+    p1, p2 = np.radians(lat1), np.radians(lat2)
+    dphi = p2 - p1
+    dlmb = np.radians(lon2 - lon1)
+    a = np.sin(dphi / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(dlmb / 2) ** 2
+    return 2 * r * np.arcsin(np.sqrt(np.clip(a, 0.0, 1.0)))

@@ -10,7 +10,7 @@ Two paths reach the same minimum:
   O(k * 11^2)).  The robust location loss is already inside the residual (see terms.py), so
   the Gauss-Newton model is that of the exact cost; the gain ratio steers lambda
   (Nielsen's rule: lambda *= max(1/3, 1 - (2 rho - 1)^3) on success, *= nu, nu *= 2 on failure).
-* ``solve_scipy`` (reference path): ``scipy.optimize.least_squares`` (trust region
+* ``solver_reference.solve_scipy`` (reference path): ``scipy.optimize.least_squares`` (trust region
   reflective) with the analytic sparse Jacobian.
 
 Both return the solution and a ``SolverResult``.  For one more edit on a solved run,
@@ -564,54 +564,12 @@ def solve_local_newton(
     )
 
 
-def solve_scipy(
-    terms: T.Terms,
-    x0: np.ndarray | None = None,
-    max_iterations: int = 200,
-    ftol: float = 1e-12,
-) -> tuple[np.ndarray, SolverResult]:
-    """Reference path: scipy.optimize.least_squares (TRF) with the analytic sparse Jacobian."""
-    from scipy.optimize import least_squares
-
-    started = time.perf_counter()
-    x0 = T.initial_state(terms) if x0 is None else np.asarray(x0, dtype=float)
-    before = T.evaluate(terms, x0, with_jac=False).costs()
-
-    def fun(x):
-        return T.evaluate(terms, x, with_jac=False).residual_vector()
-
-    def jac(x):
-        return T.sparse_jacobian(terms, T.evaluate(terms, x, with_jac=True))
-
-    out = least_squares(
-        fun,
-        x0,
-        jac=jac,
-        method="trf",
-        tr_solver="lsmr",
-        tr_options={"atol": 1e-14, "btol": 1e-14, "maxiter": 20 * len(x0)},
-        x_scale="jac",
-        ftol=ftol,
-        xtol=1e-14,
-        gtol=1e-14,
-        max_nfev=max_iterations,
-    )
-    status = "converged" if out.status > 0 else ("max_iterations" if out.status == 0 else "failed")
-    return out.x, SolverResult(
-        status=status,
-        message=str(out.message),
-        iterations=int(out.nfev),
-        cost_before=before,
-        cost_after=T.evaluate(terms, out.x, with_jac=False).costs(),
-        time_s=time.perf_counter() - started,
-        method="scipy-trf",
-    )
-
-
 def solve(terms: T.Terms, x0=None, method: str = "banded", max_iterations: int = 100, ftol: float = 1e-10):
     """Dispatch to the configured solver path."""
     if method == "banded":
         return solve_banded(terms, x0, max_iterations=max_iterations, ftol=ftol)
     if method == "scipy":
+        from posefix.core.solver_reference import solve_scipy
+
         return solve_scipy(terms, x0, max_iterations=max(max_iterations, 200), ftol=ftol)
     raise ValueError(f"unknown solver method {method!r}")

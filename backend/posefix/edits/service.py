@@ -8,7 +8,6 @@ the same transaction, so a job never points at a batch that was rolled back.
 
 from __future__ import annotations
 
-import json
 import time
 from typing import Any, Protocol
 
@@ -21,10 +20,13 @@ from posefix.db import on_commit
 from posefix.edits import repository as edits_repo
 from posefix.edits.models import EditBatch
 from posefix.edits.schemas import MoveIn
-from posefix.engine import Problem
+from posefix.core.geodesy import horizontal_distance_m
+from posefix.engine import Edit, Edits, Problem
+from posefix.engine.edits import check_batch
 from posefix.errors import BadRequest, Conflict, NotFound, Unprocessable
 from posefix.jobs import repository as jobs
-from posefix.runs import correction, storage
+from posefix.runs import solutions, storage
+from posefix.runs.engine_config import engine_config
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Revision, Run, RunStatus
 from posefix.users.models import Role
@@ -34,7 +36,7 @@ REVISION_JOB = "revision"
 
 
 def load_problem(session: Session, settings: Settings, run: Run) -> Problem:
-    cached = correction.PROBLEMS.peek(run.id, run.rules)
+    cached = solutions.PROBLEMS.peek(run.id, run.rules)
     if cached is not None:
         return cached
     rev0 = runs_repo.revision(session, run.id, 0)
@@ -44,15 +46,15 @@ def load_problem(session: Session, settings: Settings, run: Run) -> Problem:
 
     def load() -> tuple[Any, Any]:
         pose = storage.read_samples(storage.FileStore(settings.files_dir), samples_file, orientation_derived=derived, source=name)
-        return pose, correction.engine_config(settings, rules)
+        return pose, engine_config(settings, rules)
 
-    return correction.PROBLEMS.problem(run.id, rules, load)
+    return solutions.PROBLEMS.problem(run.id, rules, load)
 
 
 def edit_set_at(session: Session, run: Run, revision: int) -> dict[str, Any]:
     """The cumulative edit set of a revision, ready or still being computed."""
     if revision == 0:
-        return correction.EMPTY_EDIT_SET
+        return Edits().to_json()
     rev = runs_repo.revision(session, run.id, revision)
     if rev is not None:
         return rev.edit_set
@@ -67,25 +69,25 @@ def revision_base(session: Session, settings: Settings, run: Run, revision: int)
     """A revision's edit set and, once it is ready, its keyframes file (beside which its
     solution is stored). Ready revisions never change, so they are remembered in-process."""
     key = (settings.files_dir.as_posix(), run.id, revision)
-    cached = correction.PROBLEMS.revision(key)
+    cached = solutions.PROBLEMS.revision(key)
     if cached is not None:
         return cached
     rev = runs_repo.revision(session, run.id, revision)
     if rev is None:
         return edit_set_at(session, run, revision), None
-    value = (correction.EMPTY_EDIT_SET if revision == 0 else rev.edit_set, rev.keyframes_file)
-    correction.PROBLEMS.put_revision(key, value)
+    value = (Edits().to_json() if revision == 0 else rev.edit_set, rev.keyframes_file)
+    solutions.PROBLEMS.put_revision(key, value)
     return value
 
 
-def stored_solution(settings: Settings, run: Run, keyframes_file: str | None) -> correction.StoredSolution | None:
+def stored_solution(settings: Settings, run: Run, keyframes_file: str | None) -> solutions.StoredSolution | None:
     if keyframes_file is None:
         return None
-    return correction.StoredSolution.of(settings, keyframes_file, correction.engine_config(settings, run.rules))
+    return solutions.StoredSolution.of(settings, keyframes_file, engine_config(settings, run.rules))
 
 
-def _moves(moves: list[MoveIn]) -> list[correction.BatchMove]:
-    return [correction.BatchMove(m.index, m.lon, m.lat, m.alt) for m in moves]
+def _moves(moves: list[MoveIn]) -> list[Edit]:
+    return [Edit(m.index, m.lon, m.lat, m.alt) for m in moves]
 
 
 def preview(session: Session, settings: Settings, run: Run, base_revision: int, moves: list[MoveIn], deleted: list[int]) -> dict[str, Any]:
@@ -94,30 +96,16 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
     started = time.perf_counter()
     base, keyframes_file = revision_base(session, settings, run, base_revision)
     problem = load_problem(session, settings, run)
-    batch_moves = _moves(moves)
-    check = correction.check_batch(problem, run.rules, base, batch_moves, deleted)
-    accepted_idx = {m.index for m in check.accepted}
-    refused_deleted = {r.index for r in check.refusals if r.reason == "out_of_range"}
-    kept = [m for m in batch_moves if m.index in accepted_idx]
-    merged = correction.merge(base, kept, [d for d in deleted if d not in refused_deleted], check.flags)
-    # Warm start: the previous frame of the same drag, else the base revision's exact solution
-    # (stored with the revision, or solved once per process); the engine then re-solves only
-    # around what changed.
-    drag_key = (run.id, json.dumps(run.rules, sort_keys=True), base_revision,
-                tuple(m[0] for m in merged["moves"]), tuple(merged["deleted"]))
-    base_sol, base_solved = correction.base_solution_state(
-        run.id, run.rules, base_revision, problem, base, stored_solution(settings, run, keyframes_file))
-    sol, info = correction.preview_solve(problem, merged, base_sol, correction.PROBLEMS.preview_solution(drag_key))
-    correction.PROBLEMS.put_preview_solution(drag_key, sol)
-    lon, lat, _ = correction.keyframe_lonlatalt(problem, sol)
+    pv, base_solved = solutions.preview(run.id, run.rules, base_revision, problem, base,
+                                        stored_solution(settings, run, keyframes_file), _moves(moves), deleted)
     return {
         "base_revision": base_revision,
-        "positions": np.round(np.stack([lon, lat], axis=1), 8),
-        "solver": correction.solver_json(sol),
-        "preview": {**info, "base_solved_in_request": base_solved},
-        "drift": correction.drift_json(sol),
-        "refusals": [r.to_json() for r in check.refusals],
-        "flags": [f.to_json() for f in check.flags],
+        "positions": np.round(np.stack([pv.lon_deg, pv.lat_deg], axis=1), 8),
+        "solver": pv.solution.solver.to_json(),
+        "preview": {**pv.info, "base_solved_in_request": base_solved},
+        "drift": pv.solution.drift.to_json(),
+        "refusals": [r.to_json() for r in pv.refusals],
+        "flags": [f.to_json() for f in pv.flags],
         "time_ms": round((time.perf_counter() - started) * 1000, 2),
     }
 
@@ -130,16 +118,16 @@ def prewarm(db: Any, settings: Settings, run_id: int, revision: int) -> None:
             run = session.get(Run, run_id)
             if run is None or run.status == RunStatus.deleted:
                 return
-            if correction.PROBLEMS.solution(run.id, run.rules, revision) is not None:
+            if solutions.PROBLEMS.solution(run.id, run.rules, revision) is not None:
                 return
             base, keyframes_file = revision_base(session, settings, run, revision)
             problem = load_problem(session, settings, run)
             rules = dict(run.rules)
             stored = stored_solution(settings, run, keyframes_file)
-        sol = correction.base_solution(run_id, rules, revision, problem, base, stored)
+        sol = solutions.base_solution(run_id, rules, revision, problem, base, stored)
         problem.drag_base(sol)  # an unedited run with implausible steps: the first drag's start (engine.drag_base)
 
-    correction.warm_once(run_id, revision, work)
+    solutions.warm_once(run_id, revision, work)
 
 
 def parse_base(if_match: str | None, body_base: int | None) -> int:
@@ -206,14 +194,14 @@ def submit(
     base_set = edit_set_at(session, run, base)
     problem = load_problem(session, settings, run)
     batch_moves = _moves(moves)
-    check = correction.check_batch(problem, run.rules, base_set, batch_moves, deleted)
+    check = check_batch(problem, problem.cfg.rules, Edits.from_json(base_set), batch_moves, deleted)
     if check.refusals:
         raise Unprocessable(
             f"{len(check.refusals)} edit(s) refused by the editing rules", code="edit_refused",
             extra={"refusals": [r.to_json() for r in check.refusals]},
         )
     _claim(session, run, base)
-    merged = correction.merge(base_set, batch_moves, deleted, check.flags)
+    merged = Edits.from_json(base_set).merged(batch_moves, deleted, check.flags).to_json()
     batch = EditBatch(
         run_id=run.id, kind="edit", base_revision=base, revision=base + 1, author_id=principal.user_id,
         task_id=task_id, accept=accept, comment=comment, edit_set=merged,
@@ -224,7 +212,7 @@ def submit(
     except IntegrityError:
         raise _stale(session, run, base) from None
     edits_repo.insert_edits(session, [
-        {"batch_id": batch.id, "run_id": run.id, "k": m.index, "kind": src.kind, "lon": m.lon, "lat": m.lat, "alt": m.alt,
+        {"batch_id": batch.id, "run_id": run.id, "k": m.index, "kind": src.kind, "lon": m.lon_deg, "lat": m.lat_deg, "alt": m.alt_m,
          "author_id": principal.user_id, "task_id": task_id}
         for m, src in zip(batch_moves, moves)
     ] + [
@@ -298,7 +286,7 @@ def diff(session: Session, settings: Settings, run: Run, a: int, b: int) -> dict
     ra, rb = ready(session, run, a), ready(session, run, b)
     fs = storage.FileStore(settings.files_dir)
     ka, kb = storage.read_keyframes(fs, ra.keyframes_file), storage.read_keyframes(fs, rb.keyframes_file)
-    d = correction.horizontal_distance_m(ka.lon_deg, ka.lat_deg, kb.lon_deg, kb.lat_deg)
+    d = horizontal_distance_m(ka.lon_deg, ka.lat_deg, kb.lon_deg, kb.lat_deg)
     changed = np.flatnonzero(d > 0.001)
     return {
         "from": a, "to": b,

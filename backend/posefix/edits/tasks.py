@@ -25,7 +25,9 @@ from posefix.edits import repository as edits_repo
 from posefix.edits.service import REVISION_JOB
 from posefix.jobs.models import Job, JobStatus
 from posefix.jobs.registry import JobContext, PermanentJobError, register, register_cleanup
-from posefix.runs import correction, storage
+from posefix.core.geodesy import horizontal_distance_m
+from posefix.runs import solutions, storage
+from posefix.runs.engine_config import engine_config
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Revision, Run
 
@@ -77,19 +79,17 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
         return {"run_id": run_id, "revision": number, "already_written": True, "removed_files": len(removed)}
 
     ctx.progress(0.05, "loading run")
-    cfg = correction.engine_config(settings, rules)
+    cfg = engine_config(settings, rules)
 
     def load() -> tuple[Any, Any]:
         pose = storage.read_samples(fs, samples0, orientation_derived=derived, source=name)
         return pose, cfg
 
-    problem = correction.PROBLEMS.problem(run_id, rules, load)
     ctx.progress(0.2, "optimising keyframes")
-    warm = correction.PROBLEMS.solution(run_id, rules, prev_number)
-    sol = correction.solve(problem, edit_set, warm)
+    problem, sol = solutions.solve_revision(settings, run_id, rules, prev_number, edit_set, load)
     ctx.progress(0.6, "propagating to every sample")
     corr = problem.full_run(sol)
-    lon, lat, alt = correction.keyframe_lonlatalt(problem, sol)
+    lon, lat, alt = problem.lonlatalt(sol)
     line_lon, line_lat = storage.decimate_line(corr.run.lon_deg, corr.run.lat_deg, settings.line_max_points)
     arrays = storage.KeyframeArrays(
         lon_deg=lon, lat_deg=lat, alt_m=alt, heading_deg=storage.heading_deg(sol.keyframes.q_wxyz),
@@ -98,7 +98,7 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
     ctx.progress(0.8, "writing revision")
     stem = f"runs/{run_id}/r{number}-{uuid.uuid4().hex[:8]}"
     samples_rel, kf_rel = f"{stem}.parquet", f"{stem}.npz"
-    stored = correction.StoredSolution.of(settings, kf_rel, cfg)
+    stored = solutions.StoredSolution.of(settings, kf_rel, cfg)
     mine = (samples_rel, kf_rel, stored.rel)
     try:
         storage.write_samples(fs, samples_rel, corr.run)
@@ -112,8 +112,8 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
             return {"run_id": run_id, "revision": number, "already_written": True}
         raise
     rep_lon, rep_lat = problem.run.lon_deg[problem.keyframe_index], problem.run.lat_deg[problem.keyframe_index]
-    max_corr = float(correction.horizontal_distance_m(rep_lon, rep_lat, lon, lat).max())
-    solver, drift = correction.solver_json(sol), correction.drift_json(sol)
+    max_corr = float(horizontal_distance_m(rep_lon, rep_lat, lon, lat).max())
+    solver, drift = sol.solver.to_json(), sol.drift.to_json()
     try:
         with ctx.db.transaction() as s:
             s.add(Revision(
@@ -133,7 +133,7 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
         sweep_after_commit(ctx.db, fs, run_id, number)
         return {"run_id": run_id, "revision": number, "already_written": True}
     removed = sweep_after_commit(ctx.db, fs, run_id, number)
-    correction.PROBLEMS.put_solution(run_id, rules, number, sol)
+    solutions.PROBLEMS.put_solution(run_id, rules, number, sol)
     return {"run_id": run_id, "revision": number, "already_written": False, "solver": solver,
             "max_correction_m": max_corr, "removed_files": len(removed)}
 

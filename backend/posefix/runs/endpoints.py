@@ -13,7 +13,7 @@ import anyio
 
 from posefix.deps import AnyUser, OwnerUser, ReviewerUser, SessionDep, SettingsDep, UploaderUser, form_text, solver_limiter
 from posefix.errors import AppError, BadRequest, LengthRequired, PayloadTooLarge, UnsupportedMediaType, responses
-from posefix.runs import correction
+from posefix.runs import solutions
 from posefix.runs import images as image_service
 from posefix.runs import repository as repo
 from posefix.runs import service
@@ -178,7 +178,7 @@ def get_keyframes(
     run = get_visible_run(session, principal, settings, run_id)
     rendered = service.keyframes_geojson(session, settings, run, revision)
     if principal.role in (Role.admin, Role.reviewer, Role.operator) and run.head_revision == (revision if revision is not None else run.revision) \
-            and correction.PROBLEMS.solution(run.id, run.rules, run.head_revision) is None:
+            and solutions.PROBLEMS.solution(run.id, run.rules, run.head_revision) is None:
         # An editor is about to drag: solve (or load) this revision now, after the response is sent.
         from posefix.edits.service import prewarm
 

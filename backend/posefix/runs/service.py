@@ -24,7 +24,10 @@ from posefix.core.run import PoseRun, RunValidationError
 from posefix.db import on_rollback
 from posefix.errors import Conflict, Forbidden, NotFound, Unprocessable
 from posefix.io import RunFormatError, read_run, write_run
-from posefix.runs import correction, storage, uploads
+from posefix.core.geodesy import horizontal_distance_m
+from posefix.engine import Edits, prepare
+from posefix.runs import solutions, storage, uploads
+from posefix.runs.engine_config import default_rules, engine_config
 from posefix.runs import repository as repo
 from posefix.runs.models import Keyframe, Revision, Run, RunImage, RunStatus
 from posefix.runs.schemas import RunPublic
@@ -103,9 +106,9 @@ def import_run(
         path, original = uploads.stage_run_file(file, file_name, staging, settings)
         run = _read(path, original, fmt, origin)
         staged = uploads.stage_images(images, staging, settings)
-        rules = correction.default_rules(settings)
-        cfg = correction.engine_config(settings, rules)
-        problem = correction.prepare(run, cfg)
+        rules = default_rules(settings)
+        cfg = engine_config(settings, rules)
+        problem = prepare(run, cfg)
         index = problem.keyframe_index
         matches = _match_images(run, index, staged)
 
@@ -138,7 +141,7 @@ def import_run(
         samples_rel = storage.write_samples(fs, f"{run_dir}/r0-{tag}.parquet", run)
         kf_rel = storage.write_keyframes(fs, f"{run_dir}/r0-{tag}.npz", storage.keyframe_arrays(run, index, settings.line_max_points))
         repo.add(session, Revision(
-            run_id=row.id, number=0, kind="import", created_by=principal.user_id, edit_set=correction.EMPTY_EDIT_SET,
+            run_id=row.id, number=0, kind="import", created_by=principal.user_id, edit_set=Edits().to_json(),
             solver=None, drift=None, samples_file=samples_rel, keyframes_file=kf_rel, max_correction_m=0.0,
         ))
         for img, (sample, k) in zip(staged, matches):
@@ -152,7 +155,7 @@ def import_run(
         repo.record(session, row, principal.user_id, "imported", to_status=RunStatus.imported, revision=0,
                     detail={"file": original, "samples": run.n, "keyframes": len(index), "images": len(staged)})
         session.flush()
-    correction.PROBLEMS.put(row.id, rules, problem)
+    solutions.PROBLEMS.put(row.id, rules, problem)
     return row
 
 
@@ -267,7 +270,7 @@ def _render_geojson(session: Session, settings: Settings, run: Run, rev: Revisio
     arrays = storage.read_keyframes(store(settings), rev.keyframes_file)
     k = len(kfs)
     rules = EditRules.from_json(run.rules)
-    edit_set = rev.edit_set or correction.EMPTY_EDIT_SET
+    edit_set = rev.edit_set or Edits().to_json()
     edited_idx = [int(m[0]) for m in edit_set.get("moves", [])]
     deleted = set(int(d) for d in edit_set.get("deleted", []))
     flagged = {int(f["index"]): f for f in edit_set.get("flags", [])}
@@ -280,7 +283,7 @@ def _render_geojson(session: Session, settings: Settings, run: Run, rev: Revisio
             images_by_k.setdefault(im.keyframe, []).append(im.id)
     rep_lon = np.array([r[3] for r in kfs])
     rep_lat = np.array([r[4] for r in kfs])
-    corr_m = _rounded(correction.horizontal_distance_m(rep_lon, rep_lat, arrays.lon_deg, arrays.lat_deg), 3)
+    corr_m = _rounded(horizontal_distance_m(rep_lon, rep_lat, arrays.lon_deg, arrays.lat_deg), 3)
     lon, lat = _rounded(arrays.lon_deg, 7), _rounded(arrays.lat_deg, 7)
     rlon, rlat = _rounded(rep_lon, 7), _rounded(rep_lat, 7)
     heading = _rounded(arrays.heading_deg, 2)
@@ -346,7 +349,7 @@ def soft_delete(session: Session, principal: Principal, run: Run) -> None:
     repo.record(session, run, principal.user_id, "deleted", to_status=RunStatus.deleted)
     run.status = RunStatus.deleted
     run.deleted_at = dt.datetime.now(dt.UTC)
-    correction.PROBLEMS.forget(run.id)
+    solutions.PROBLEMS.forget(run.id)
 
 
 def review(session: Session, principal: Principal, run: Run, decision: str, comment: str | None) -> Run:

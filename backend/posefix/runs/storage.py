@@ -212,11 +212,11 @@ def keyframe_arrays(run: PoseRun, index: np.ndarray, max_line_points: int) -> Ke
 
 # -- solved keyframe state of a revision (a cache shared by every process) ----------------
 
-SOLUTION_FORMAT = 1
+SOLUTION_FORMAT = 2  # 2: the engine's classes moved (engine.results, core.drift.base)
 # The engine's result types a solution file may hold (nothing else is ever instantiated).
 _SOLUTION_CLASSES = frozenset({
-    "posefix.engine:Solution", "posefix.core.keyframes:KeyframeSet", "posefix.core.solver:SolverResult",
-    "posefix.core.drift:DriftEstimate", "posefix.core.terms:Terms", "posefix.core.rules:Refusal",
+    "posefix.engine.results:Solution", "posefix.core.keyframes:KeyframeSet", "posefix.core.solver:SolverResult",
+    "posefix.core.drift.base:DriftEstimate", "posefix.core.terms:Terms", "posefix.core.rules:Refusal",
     "posefix.core.solver:Linearisation",
 })
 

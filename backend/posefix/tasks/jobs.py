@@ -19,7 +19,9 @@ from posefix.core.evaluate import evaluate
 from posefix.db import utcnow
 from posefix.jobs import repository as jobs
 from posefix.jobs.registry import JobContext, PermanentJobError, register
-from posefix.runs import correction, storage
+from posefix.engine import Edits
+from posefix.runs import solutions, storage
+from posefix.runs.engine_config import engine_config
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Run
 from posefix.tasks import clock
@@ -57,12 +59,12 @@ def evaluate_submission(ctx: JobContext, payload: dict[str, Any]) -> dict[str, A
 
     def load() -> tuple[Any, Any]:
         pose = storage.read_samples(fs, samples0, orientation_derived=derived, source=name)
-        return pose, correction.engine_config(ctx.settings, rules)
+        return pose, engine_config(ctx.settings, rules)
 
-    problem = correction.PROBLEMS.problem(run_id, rules, load)
+    problem = solutions.PROBLEMS.problem(run_id, rules, load)
     ctx.progress(0.2, "optimising the submission")
-    sol = correction.solve(problem, edit_set)
-    lon, lat, _ = correction.keyframe_lonlatalt(problem, sol)
+    sol = problem.solve_edits(Edits.from_json(edit_set))
+    lon, lat, _ = problem.lonlatalt(sol)
     corrected = np.round(np.column_stack([lon, lat]), 8).tolist()
     gold_error = None
     if truth_file is not None:
@@ -70,7 +72,7 @@ def evaluate_submission(ctx: JobContext, payload: dict[str, Any]) -> dict[str, A
         truth = storage.read_samples(fs, truth_file, orientation_derived=False, source=f"truth of {name}")
         gold_error = float(evaluate(truth, problem.full_run(sol).run).horizontal.mean_m)
     def reoptimise(es: dict[str, Any]) -> np.ndarray:
-        lo, la, _ = correction.keyframe_lonlatalt(problem, correction.solve(problem, es))
+        lo, la, _ = problem.lonlatalt(problem.solve_edits(Edits.from_json(es)))
         return np.column_stack([lo, la])
 
     with ctx.db.transaction() as s:

@@ -14,7 +14,8 @@ from posefix.config import Settings
 from posefix.edits import service as edits_service
 from posefix.edits.schemas import MoveIn
 from posefix.jobs import repository as jobs
-from posefix.runs import correction
+from posefix.engine import Edit, Edits
+from posefix.engine.edits import check_batch
 from posefix.runs.models import Run
 from posefix.tasks import consensus
 from posefix.tasks import repository as repo
@@ -104,8 +105,8 @@ def drop_refused(session: Session, settings: Settings, run: Run, moves: list[Mov
     problem = edits_service.load_problem(session, settings, run)
     dropped: list[dict[str, Any]] = []
     for _ in range(passes):
-        batch = [correction.BatchMove(m.index, m.lon, m.lat, m.alt) for m in moves]
-        refusals = correction.check_batch(problem, run.rules, base, batch, deleted).refusals
+        batch = [Edit(m.index, m.lon, m.lat, m.alt) for m in moves]
+        refusals = check_batch(problem, problem.cfg.rules, Edits.from_json(base), batch, deleted).refusals
         if not refusals:
             return moves, deleted, dropped
         refused = {int(r.index) for r in refusals}

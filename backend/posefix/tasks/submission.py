@@ -13,7 +13,8 @@ from sqlalchemy.orm import Session
 from posefix.config import Settings
 from posefix.errors import NotFound, Unprocessable
 from posefix.jobs import repository as jobs
-from posefix.runs import correction
+from posefix.engine import Edit, Edits
+from posefix.engine.edits import check_batch
 from posefix.runs.models import Run
 from posefix.tasks import repository as repo
 from posefix.tasks.agreement import Reoptimise, update_consensus
@@ -42,12 +43,12 @@ def submit(session: Session, settings: Settings, principal: Principal, assignmen
     base_revision = a.base_revision or 0
     base = edits_service.edit_set_at(session, run, base_revision)
     problem = edits_service.load_problem(session, settings, run)
-    moves = [correction.BatchMove(m.index, m.lon, m.lat, m.alt) for m in body.moves]
-    check = correction.check_batch(problem, run.rules, base, moves, body.deleted)
+    moves = [Edit(m.index, m.lon, m.lat, m.alt) for m in body.moves]
+    check = check_batch(problem, problem.cfg.rules, Edits.from_json(base), moves, body.deleted)
     if check.refusals:
         raise Unprocessable(f"{len(check.refusals)} edit(s) refused by the editing rules", code="edit_refused",
                             extra={"refusals": [r.to_json() for r in check.refusals]})
-    edit_set = correction.merge(base, moves, body.deleted, check.flags)
+    edit_set = Edits.from_json(base).merged(moves, body.deleted, check.flags).to_json()
     edit_set["accept"] = bool(body.accept)
     edit_set["own_moves"] = sorted(m.index for m in moves)
     task = session.get(Task, a.task_id)

@@ -1,14 +1,9 @@
-"""The correction engine's Python API (used by the CLI, the server, notebooks).
-
->>> from posefix.io import read_run, read_edits
->>> from posefix.engine import CorrectionConfig, prepare, correct
->>> result = correct(read_run("drive.csv"), read_edits("edits.json"), CorrectionConfig())
->>> result.run, result.keyframes, result.solver, result.drift
+"""The problem: a run prepared for correction, solved for any edit set.
 
 ``prepare(run, cfg)`` does the work that does not depend on the edits once (local frame,
-keyframes, reported relative motion) and returns a ``Problem``; ``problem.solve(edits,
-warm_start=previous)`` re-optimises after each batch of edits and ``problem.preview(...)``
-answers a live drag at keyframe level (no propagation to full rate).
+keyframes, reported relative motion, the run's GNSS statistics) and returns a ``Problem``;
+``solve`` / ``solve_edits`` re-optimise after each batch of edits, ``preview`` answers a
+live drag at keyframe level (``engine.preview``), ``full_run`` propagates to every sample.
 
 Frames: the optimisation runs in an East-North-Up frame anchored at the first sample
 (exact, through ECEF).  A pose's quaternion in the run is relative to ENU at its own
@@ -19,16 +14,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from posefix.core import geodesy
 from posefix.core import rotations as rot
 from posefix.core import terms as T
-from posefix.core.config import ConfigError, CorrectionConfig
+from posefix.core.config import CorrectionConfig
 from posefix.core.drift import (
     DriftEstimate,
+    DriftParams,
     GnssLevels,
     GnssSteps,
     edit_bends,
@@ -44,101 +39,15 @@ from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
-from posefix.core.solver import (
-    Linearisation,
-    SolverResult,
-    position_term_costs,
-    solve,
-    solve_banded,
-    solve_local_newton,
-)
+from posefix.core.solver import solve, solve_banded
+from posefix.engine.edits import Edit, Edits, targets_enu
+from posefix.engine.results import Correction, EditRefusedError, Preview, Solution
+from posefix.engine.window import solve_window
 
-LOCAL_MARGIN = 30  # keyframes re-optimised beyond those whose terms changed (local solves) ...
-LOCAL_EDGE_M = 0.01  # ... and more (x3 each time) while the keyframes next to the held ones move more than this
 # A full solve keeps the model of its edit-independent terms for the next local solve up to this
 # many keyframes (about 105 doubles each: 3 MB at 3,600, 17 MB at 20,000; kept with the solution,
 # and in the server's stored solution files); beyond, a local solve linearises its window
 LINEARISE_MAX_KEYFRAMES = 20_000
-
-__all__ = [
-    "CorrectionConfig",
-    "ConfigError",
-    "Problem",
-    "Solution",
-    "Correction",
-    "Preview",
-    "EditRefusedError",
-    "KeyframeEdit",
-    "prepare",
-    "correct",
-]
-
-
-class EditRefusedError(ValueError):
-    """Edits refused by the edit rules; ``refusals`` lists each with its reason."""
-
-    def __init__(self, refusals: list[Refusal]):
-        self.refusals = refusals
-        super().__init__("; ".join(f"keyframe {r.index}: {r.reason}: {r.message}" for r in refusals))
-
-
-@dataclass(frozen=True)
-class KeyframeEdit:
-    """A move of keyframe ``index`` (into the problem's keyframes) to lon/lat (and alt)."""
-
-    index: int
-    lon_deg: float
-    lat_deg: float
-    alt_m: float | None = None
-
-
-@dataclass(frozen=True)
-class Solution:
-    """A keyframe-level solution: keyframes, solver result, drift, and the raw state."""
-
-    keyframes: KeyframeSet
-    solver: SolverResult
-    drift: DriftEstimate
-    x: np.ndarray  # (6k_active,) state over the active (non-removed) keyframes
-    active: np.ndarray  # (k,) bool: keyframe took part in the optimisation
-    flags: list[Refusal] = field(default_factory=list)
-    terms: T.Terms | None = None  # the problem that was solved (for diagnostics, benchmarks)
-    # the relative and gravity terms' model at the last full solve's answer (see solver.Linearisation):
-    # a local solve warm-started from this solution re-uses it instead of linearising its window
-    linearisation: Linearisation | None = field(default=None, repr=False, compare=False)
-
-
-@dataclass(frozen=True)
-class Correction:
-    """The result of ``correct``: the corrected full-rate run and how it was obtained."""
-
-    run: PoseRun
-    keyframes: KeyframeSet
-    solver: SolverResult
-    drift: DriftEstimate
-    kept_rows: np.ndarray  # rows of the input present in ``run`` (deleted keyframes removed)
-    flags: list[Refusal] = field(default_factory=list)
-    propagation_time_s: float = 0.0
-    x: np.ndarray | None = None  # the keyframe state solved for (for warm starts)
-    active: np.ndarray | None = None
-    terms: T.Terms | None = None
-    linearisation: Linearisation | None = field(default=None, repr=False, compare=False)
-
-    @property
-    def solution(self) -> Solution:
-        """The keyframe-level solution behind this correction (a warm start for the next solve)."""
-        return Solution(self.keyframes, self.solver, self.drift, self.x, self.active, self.flags, self.terms,
-                        self.linearisation)
-
-
-@dataclass(frozen=True)
-class Preview:
-    """A live-drag answer: corrected keyframe positions and what was refused."""
-
-    lon_deg: np.ndarray  # (k,)
-    lat_deg: np.ndarray  # (k,)
-    solution: Solution
-    refusals: list[Refusal]
 
 
 class Problem:
@@ -316,6 +225,25 @@ class Problem:
 
     # ----------------------------------------------------------------- solving
 
+    def estimate_drift(self, act_rows: np.ndarray, edit_kf: np.ndarray, edit_c_m: np.ndarray,
+                       edit_has_alt: np.ndarray, held: DriftParams | None = None,
+                       g_nan: np.ndarray | None = None) -> DriftEstimate:
+        """The drift estimate (``drift.estimate_drift``) of edits at keyframes ``edit_kf`` (into
+        ``act_rows``) with ENU targets ``edit_c_m``; ``held`` keeps a previous solve's parameters."""
+        cfg = self.cfg
+        lc, uc = cfg.location, cfg.user
+        t_act = self.run.t_s[act_rows]
+        p_rep = self._static_terms(act_rows).p_rep_m
+        if g_nan is None:
+            g_nan = self._location_measurements(act_rows)[2]
+        return estimate_drift(
+            t_act, p_rep, g_nan, np.asarray(edit_kf, dtype=np.int64), np.asarray(edit_c_m, dtype=float).reshape(-1, 3),
+            np.asarray(edit_has_alt, dtype=bool), lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
+            cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
+            held=held, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan),
+            levels=lambda: self.gnss_levels(act_rows),
+        )
+
     def solve_rows(
         self,
         index: np.ndarray,
@@ -333,7 +261,7 @@ class Problem:
 
         With ``local`` and a warm start on the same keyframes (a live drag, one more edit),
         the drift model keeps the previous solve's parameters and only the keyframes whose
-        terms changed, plus ``LOCAL_MARGIN`` on each side, are re-optimised; the rest stay
+        terms changed, plus ``window.LOCAL_MARGIN`` on each side, are re-optimised; the rest stay
         at the previous solution (the edit's effect beyond its neighbouring edits is
         negligible).  Without ``local`` the full problem is solved (from the warm start).
         ``drift`` (on the active keyframes) replaces the drift estimate: a live-drag preview
@@ -364,21 +292,14 @@ class Problem:
         warm_sol = None if warm_start is None else (
             warm_start.solution if isinstance(warm_start, Correction) else warm_start)
         same_rows = warm_sol is not None and _same_rows(warm_sol, act_rows)
-        frozen = None
+        held = None
         if local and same_rows and warm_sol.drift.tau_s > 0:
-            frozen = (warm_sol.drift.sigma_b_m**2, warm_sol.drift.tau_s, warm_sol.drift.detected,
-                      warm_sol.drift)
+            held = DriftParams.of(warm_sol.drift)
         if drift is not None:
             if len(drift.bias_sigma_m) != len(act_rows):
                 raise ValueError(f"drift is for {len(drift.bias_sigma_m)} keyframes, the solve has {len(act_rows)}")
         elif cfg.drift.enabled and len(e_act):
-            drift = estimate_drift(
-                t_act, p_rep, g_nan, e_act, edit_c_m, edit_has_alt,
-                lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
-                cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
-                frozen=frozen, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan),
-                levels=lambda: self.gnss_levels(act_rows),
-            )
+            drift = self.estimate_drift(act_rows, e_act, edit_c_m, edit_has_alt, held, g_nan)
         else:
             drift = no_drift(len(act_rows))
         loc_idx = np.flatnonzero(has_fix)
@@ -426,7 +347,7 @@ class Problem:
             lin = warm_sol.linearisation
             if lin is not None and not lin.matches(terms):
                 lin = None
-            x, result = self._solve_window(terms, warm_sol.terms, x0, warm_sol.solver, lin)
+            x, result = solve_window(terms, warm_sol.terms, x0, warm_sol.solver, cfg.solver, lin)
         if result is None:
             if cfg.solver.method == "banded":
                 x, result = solve_banded(terms, x0, cfg.solver.max_iterations, cfg.solver.ftol,
@@ -490,80 +411,6 @@ class Problem:
             cached = self._static[key] = (sol, base)
         return cached[1]
 
-    def _solve_window(self, terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: SolverResult,
-                      lin: Linearisation | None = None):
-        """Re-optimise only around the keyframes whose terms changed; None if that is most of the run.
-
-        The window a..b (changed keyframes plus ``LOCAL_MARGIN``) is solved with a held
-        keyframe on each side (lo = a - 1, hi = b + 1) carrying the rest of the run as a
-        boundary condition: a few Gauss-Newton steps from the previous solution (damped
-        Levenberg-Marquardt if they do not settle).  Every term touching a keyframe outside
-        lo..hi involves only states that did not move, so the full problem's cost is the
-        previous solve's cost minus the old window terms' cost plus the new window's
-        (exact up to the tolerance of ``changed_keyframes`` on terms outside the window);
-        no full-length evaluation is needed.  ``lin``, the previous full solve's model of the
-        edit-independent terms, spares linearising the window (held ends are exact: their
-        blocks are replaced by the identity).
-        """
-        # a location term whose target moved by under a centimetre (its sigma is metres) moves the
-        # solution by less than that: such changes are left to the next full solve
-        changed = T.changed_keyframes(terms, old, tol_m=0.01, tol_rel=0.01)
-        if changed is None:
-            return None, None
-        k = terms.n_keyframes
-        hit = np.flatnonzero(changed)
-        started = time.perf_counter()
-        if len(hit) == 0:
-            return x0, SolverResult("converged", "nothing changed", 0, dict(old_result.cost_after),
-                                    dict(old_result.cost_after), time.perf_counter() - started,
-                                    "local-window", extra={"window_held": (0, -1)})
-        xs = x0.reshape(-1, 6)
-        margin = LOCAL_MARGIN
-        while True:
-            a = max(int(hit[0]) - margin, 0)
-            b = min(int(hit[-1]) + margin, k - 1)
-            if b - a + 1 > 0.5 * k:
-                return None, None
-            lo, hi = max(a - 1, 0), min(b + 1, k - 1)
-            sub = T.window_terms(terms, lo, hi)
-            fixed = np.zeros(hi - lo + 1, dtype=bool)
-            fixed[0] = lo < a
-            fixed[-1] = hi > b
-            x_sub0 = xs[lo:hi + 1].ravel()
-            lin_w, before, at_lin = None, None, False
-            if lin is not None:
-                lin_w = lin.window(lo, hi)
-                at_lin = np.array_equal(lin_w.x_lin, x_sub0)  # warm from the solve that built it: costs known
-                if at_lin:
-                    before = {**lin.window_costs(lo, hi, sub.rel_w_t), **position_term_costs(sub, xs[lo:hi + 1, :3])}
-            out = solve_local_newton(sub, x_sub0, fixed, linearisation=lin_w, cost_before=before)
-            if out is None:
-                cfg = self.cfg.solver
-                # a local answer previews a change of metres: stopping when a step gains under
-                # 1e-6 of the cost leaves it within about a centimetre of the window's optimum
-                out = solve_banded(sub, x_sub0, cfg.max_iterations, max(cfg.ftol, 1e-6), fixed=fixed)
-            x_sub, res = out
-            # the held keyframes stand in for the rest of the run; if the keyframes beside them
-            # still moved by more than LOCAL_EDGE_M, the change reaches further: widen and redo
-            moved = np.abs(x_sub.reshape(-1, 6)[:, :3] - x_sub0.reshape(-1, 6)[:, :3]).max(axis=1)
-            edge = max(moved[1] if fixed[0] else 0.0, moved[-2] if fixed[-1] else 0.0)
-            if edge <= LOCAL_EDGE_M:
-                break
-            margin *= 3
-        x = xs.copy()
-        x[lo:hi + 1] = x_sub.reshape(-1, 6)
-        old_sub = T.window_terms(old, lo, hi)
-        if at_lin:  # the previous problem's window costs at the same start, from the kept model too
-            old_window = {**lin.window_costs(lo, hi, old_sub.rel_w_t), **position_term_costs(old_sub, xs[lo:hi + 1, :3])}
-        else:
-            old_window = _window_costs_before(old_sub, sub, x_sub0, res.cost_before)
-        rest = {name: old_result.cost_after[name] - old_window[name] for name in T.TERM_NAMES}
-        before = {name: rest[name] + res.cost_before[name] for name in T.TERM_NAMES}
-        after = {name: rest[name] + res.cost_after[name] for name in T.TERM_NAMES}
-        result = SolverResult(res.status, res.message + f" (keyframes {a}..{b} of {k})", res.iterations, before,
-                              after, time.perf_counter() - started, res.method + "-window",
-                              extra={**res.extra, "window": (a, b), "window_held": (lo, hi)})
-        return x.ravel(), result
 
     def _warm_state(self, act_rows: np.ndarray, p_rep: np.ndarray, warm) -> np.ndarray | None:
         """Initial state from a previous solution: its corrections interpolated in time."""
@@ -619,35 +466,34 @@ class Problem:
             raise EditRefusedError(check.refusals)
         return check.flags
 
-    def preview(
-        self,
-        moves: list[KeyframeEdit],
-        deleted: list[int] = (),
-        warm_start: Solution | None = None,
-        edited_before: dict[int, tuple[float, float]] | None = None,
-        local: bool = True,
-    ) -> Preview:
-        """Keyframe-level answer for a live drag on the default keyframes (no full-rate output).
 
-        Refused moves are left out and listed; flagged ones are kept.  With a warm start the
-        solve is local (see ``solve_rows``); pass ``local=False`` for the exact optimum.
+    def solve_edits(self, edits: Edits, warm_start: Solution | None = None, *, local: bool = False,
+                    drift: DriftEstimate | None = None) -> Solution:
+        """Solve an edit set on the default keyframes (the server's edits); ``local`` (with a warm
+        start) re-optimises only around what changed; ``drift`` replaces the drift estimate."""
+        return self.solve_rows(self.keyframe_index, edits.index, targets_enu(self, edits.moves), edits.has_alt,
+                               np.array(edits.deleted, dtype=np.int64), warm_start, list(edits.flags),
+                               local=local, drift=drift)
+
+    def preview(self, moves: list[Edit], deleted=(), base_edits: Edits | None = None,
+                base: Solution | None = None, warm_start=None) -> Preview:
+        """Keyframe-level answer for a live drag of ``moves`` on a base edit set (``engine.preview``).
+
+        ``base`` is the base edit set's exact solution (solved here when not given: a server
+        keeps it per revision); ``warm_start`` the previous frame of the same drag (or a function of
+        the merged edit set returning it).
         """
-        index = self.keyframe_index
-        rules = self.cfg.rules
-        c_all = np.zeros((len(moves), 3))
-        for n, m in enumerate(moves):
-            alt = m.alt_m if m.alt_m is not None else float(self.run.alt_m[index[min(max(m.index, 0), len(index) - 1)]])
-            c_all[n] = self.to_enu(m.lon_deg, m.lat_deg, alt)[0]
-        km = [KeyframeMove(int(m.index), float(c[0]), float(c[1])) for m, c in zip(moves, c_all)]
-        check = check_edits(rules, self.p_enu_m[index, :2], km, list(deleted), edited_before)
-        keep = [n for n, m in enumerate(km) if any(a is m for a in check.accepted)]
-        edit_kf = np.array([moves[n].index for n in keep], dtype=np.int64)
-        has_alt = np.array([moves[n].alt_m is not None for n in keep], dtype=bool)
-        deleted_ok = np.array([d for d in deleted if 0 <= int(d) < len(index)], dtype=np.int64)
-        sol = self.solve_rows(index, edit_kf, c_all[keep], has_alt, deleted_ok, warm_start, check.flags,
-                              local=local)
-        lat, lon, _ = geodesy.enu_to_geodetic(sol.keyframes.p_enu_m, self.origin)
-        return Preview(lon_deg=lon, lat_deg=lat, solution=sol, refusals=check.refusals)
+        from posefix.engine.preview import preview_batch
+
+        base_edits = base_edits or Edits()
+        if base is None:
+            base = self.solve_edits(base_edits)
+        return preview_batch(self, list(moves), list(deleted), base_edits, base, warm_start)
+
+    def lonlatalt(self, sol: Solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Longitude, latitude (degrees) and altitude (m) of a solution's keyframes, (k,) each."""
+        lat, lon, alt = geodesy.enu_to_geodetic(sol.keyframes.p_enu_m, self.origin)
+        return np.asarray(lon), np.asarray(lat), np.asarray(alt)
 
     # ----------------------------------------------------------------- full rate
 
@@ -687,22 +533,6 @@ class Problem:
             propagation_time_s=time.perf_counter() - started, x=sol.x, active=sol.active, terms=sol.terms,
             linearisation=sol.linearisation,
         )
-
-
-def _window_costs_before(old_sub: T.Terms, new_sub: T.Terms, x_sub0: np.ndarray,
-                         new_before: dict[str, float]) -> dict[str, float]:
-    """Cost of the previous problem's window terms at the warm start, per term.
-
-    The location and user terms differ between the previous and the new problem, so those
-    two are evaluated; the relative and gravity terms are the new window's costs at the same
-    start, ``new_before``, unless the edits changed their weights in the window (then all
-    are evaluated).
-    """
-    same = all(T.same_array(a, b) for a, b in (
-        (old_sub.rel_w_t, new_sub.rel_w_t), (old_sub.rel_w_r, new_sub.rel_w_r), (old_sub.grav_w, new_sub.grav_w)))
-    if not same:
-        return T.evaluate(old_sub, x_sub0, with_jac=False).costs()
-    return {**new_before, **position_term_costs(old_sub, x_sub0.reshape(-1, 6)[:, :3])}
 
 
 def _same_rows(sol: Solution, act_rows: np.ndarray) -> bool:
