@@ -10,7 +10,7 @@ Two paths reach the same minimum:
   O(k * 11^2)).  The robust location loss is already inside the residual (see terms.py), so
   the Gauss-Newton model is that of the exact cost; the gain ratio steers lambda
   (Nielsen's rule: lambda *= max(1/3, 1 - (2 rho - 1)^3) on success, *= nu, nu *= 2 on failure).
-* ``solver_reference.solve_scipy`` (reference path): ``scipy.optimize.least_squares`` (trust region
+* ``solver_reference.solve_scipy`` (reference path; ``solver_reference.solve`` dispatches between the two): ``scipy.optimize.least_squares`` (trust region
   reflective) with the analytic sparse Jacobian.
 
 Both return the solution and a ``SolverResult``.  For one more edit on a solved run,
@@ -562,14 +562,3 @@ def solve_local_newton(
         time_s=time.perf_counter() - started,
         method="local-newton",
     )
-
-
-def solve(terms: T.Terms, x0=None, method: str = "banded", max_iterations: int = 100, ftol: float = 1e-10):
-    """Dispatch to the configured solver path."""
-    if method == "banded":
-        return solve_banded(terms, x0, max_iterations=max_iterations, ftol=ftol)
-    if method == "scipy":
-        from posefix.core.solver_reference import solve_scipy
-
-        return solve_scipy(terms, x0, max_iterations=max(max_iterations, 200), ftol=ftol)
-    raise ValueError(f"unknown solver method {method!r}")

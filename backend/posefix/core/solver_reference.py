@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from posefix.core import terms as T
-from posefix.core.solver import SolverResult
+from posefix.core.solver import SolverResult, solve_banded
 
 
 def solve_scipy(
@@ -56,3 +56,12 @@ def solve_scipy(
         time_s=time.perf_counter() - started,
         method="scipy-trf",
     )
+
+
+def solve(terms: T.Terms, x0=None, method: str = "banded", max_iterations: int = 100, ftol: float = 1e-10):
+    """Dispatch to the configured solver path."""
+    if method == "banded":
+        return solve_banded(terms, x0, max_iterations=max_iterations, ftol=ftol)
+    if method == "scipy":
+        return solve_scipy(terms, x0, max_iterations=max(max_iterations, 200), ftol=ftol)
+    raise ValueError(f"unknown solver method {method!r}")

@@ -39,7 +39,8 @@ from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
-from posefix.core.solver import solve, solve_banded
+from posefix.core.solver import solve_banded
+from posefix.core.solver_reference import solve
 from posefix.engine.edits import Edit, Edits, targets_enu
 from posefix.engine.results import Correction, EditRefusedError, Preview, Solution
 from posefix.engine.window import solve_window
