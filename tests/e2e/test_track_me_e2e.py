@@ -194,3 +194,34 @@ def test_track_me_without_a_start_shows_the_modes(server, browser, floor_id):
         assert "not located yet" in msg.inner_text() and "places fit the steps" in msg.inner_text()
     finally:
         ctx.close()
+
+
+def test_replay_tracks_the_walk_file_in_the_browser_beside_the_server(server, context, floor_id, tmp_path):
+    """The floor page's replay runs the browser tracker on the file's sensor lines: its error at
+    the waypoints is the Python online filter's on the same model bytes; the server's smoothed
+    answer comes on request, beside it."""
+    walk = read_walk(WALK)
+    page = context.new_page()
+    login(page, server, "op1")
+    page.goto(f"{server.base_url}/#/floors/{floor_id}")
+    page.wait_for_selector("canvas[data-image='loaded']", timeout=15_000)
+    page.get_by_test_id("walk-file").set_input_files(str(WALK))
+    page.get_by_test_id("walk-track").click()
+    mean = page.get_by_test_id("error-mean")
+    mean.wait_for(timeout=30_000)
+    ours = float(mean.inner_text().split("mean ")[1].split(" m")[0])
+    theirs = server_mean_error(server, floor_id, walk, (float(walk.waypoints[0, 1]), float(walk.waypoints[0, 2])), tmp_path)
+    assert abs(ours - theirs) <= 0.006, (ours, theirs)  # the same filter, shown to the centimetre
+
+    page.get_by_test_id("walk-server").click()
+    line = page.get_by_test_id("server-error-mean")
+    page.wait_for_function("document.querySelector('[data-testid=server-error-mean]').textContent.includes('Server (smoothed')",
+                           timeout=30_000)
+    c = server.srv.client("op1")
+    try:
+        r = c.post(f"/api/v1/floorplans/{floor_id}/walks", files=[("file", (WALK.name, WALK.read_bytes(), "text/plain"))])
+        assert r.status_code == 200, r.text
+        smoothed = r.json()["errors"]["mean_m"]
+    finally:
+        c.close()
+    assert f"mean {smoothed:.2f} m at 6 waypoints" in line.inner_text()
