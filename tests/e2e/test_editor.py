@@ -212,6 +212,7 @@ class TestDeleteRangeAcceptReset:
         page.get_by_test_id("delete-range").click()
         page.mouse.click(*keyframe_px(page, 20))
         page.mouse.click(*keyframe_px(page, 24))
+        page.get_by_test_id("range-yes").click()
         wait_unsaved(page, 5)
         assert [status_of(page, i) for i in range(19, 26)] == ["fixed", "deleted", "deleted", "deleted", "deleted", "deleted", "fixed"]
         assert "Delete keyframes 20–24" in page.get_by_test_id("undo").get_attribute("title")

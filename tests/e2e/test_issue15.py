@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from tests.e2e.helpers import login, open_run, shot
+from tests.e2e.helpers import keyframe_px, login, open_run, shot, zoom_to
 
 pytestmark = pytest.mark.e2e
 
@@ -71,4 +71,44 @@ def test_history_compare_revert_and_audit(server, browser, run_id):
     edits = page.get_by_test_id("activity-edits")
     edits.get_by_text("onto the lane").wait_for()
     assert f"e2e {'test_history_compare_revert_and_audit'}" in edits.inner_text()
+    page.close()
+
+
+def status_of(page, index: int) -> str:
+    return page.evaluate("(i) => { const f = window.__posefixMap.getSource('pf-keyframes')._data; return (f.geojson || f).features[i].properties.s; }", index)
+
+
+def test_delete_range_is_between_the_two_clicks_and_asks_first(server, browser, run_id):
+    api_move(server, "op1", run_id, 22, 5.0, "kept lane")
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    login(page, server)
+    open_run(page, server, run_id)
+    zoom_to(page, 25, zoom=17.5)
+    page.mouse.click(*keyframe_px(page, 30))  # selected before the range tool: not part of the range
+    page.get_by_test_id("delete-range").click()
+    page.mouse.click(*keyframe_px(page, 20))
+    page.mouse.click(*keyframe_px(page, 24))
+    q = page.get_by_test_id("range-question")
+    q.wait_for()
+    assert q.inner_text() == "Delete keyframes 20–24 (5 keyframes)? This drops the move of keyframe 22."
+    page.get_by_test_id("range-no").click()
+    assert page.evaluate("document.querySelector('.editor').dataset.unsaved") == "0"
+    page.get_by_test_id("delete-range").click()
+    page.mouse.click(*keyframe_px(page, 20))
+    page.mouse.click(*keyframe_px(page, 24))
+    page.get_by_test_id("range-yes").click()
+    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '5'")
+    assert [status_of(page, i) for i in (19, 20, 24, 25, 30)] == ["fixed", "deleted", "deleted", "fixed", "adjustable"]
+    page.close()
+
+
+def test_tile_source_name_is_checked_in_the_browser(server, browser):
+    page = browser.new_page()
+    login(page, server, "admin")
+    page.goto(server.base_url + "/#/admin/tiles")
+    name = page.locator("#ts-name")
+    name.fill("Bad Name")
+    assert name.evaluate("el => el.validity.patternMismatch") is True
+    name.fill("good-name_2")
+    assert name.evaluate("el => el.validity.valid") is True
     page.close()

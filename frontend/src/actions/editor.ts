@@ -58,7 +58,8 @@ export function clearStaging(s: EditorState): EditorState {
 }
 
 export function setMode(s: EditorState, mode: ModeName): EditorState {
-  return s.mode === mode ? s : { ...s, mode, rangeAnchor: mode === "select-range" ? s.selected : null };
+  // A range starts at the first keyframe clicked in the mode, never at an earlier selection.
+  return s.mode === mode ? s : { ...s, mode, rangeAnchor: null };
 }
 
 export function select(s: EditorState, index: number | null): EditorState {

@@ -8,7 +8,8 @@ import { h } from "./dom";
 export function renderAdminTiles(main: HTMLElement, _ctx: AppContext): void {
   const list = h("div");
   const field = (id: string, label: string, input: HTMLElement) => [h("label", { for: id }, label), input];
-  const name = h("input", { id: "ts-name", required: true, pattern: "[a-z][a-z0-9_-]{0,63}", title: "lower-case letters, digits, - and _" });
+  // The escaped "-" keeps the pattern valid under the v flag Chromium compiles it with.
+  const name = h("input", { id: "ts-name", required: true, pattern: "[a-z][a-z0-9_\\-]{0,63}", title: "lower-case letters, digits, - and _" });
   const title = h("input", { id: "ts-title" });
   const kind = h("select", { id: "ts-kind" }, ...["street", "satellite", "topo", "other"].map((k) => h("option", { value: k }, k)));
   const origin = h("select", { id: "ts-origin" }, h("option", { value: "path" }, "Tile file on the server (.mbtiles / .pmtiles)"), h("option", { value: "url" }, "Upstream XYZ URL"));

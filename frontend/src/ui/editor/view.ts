@@ -23,6 +23,7 @@ import { EditorController } from "./controller";
 import { ImagesPanel } from "./images";
 import { HistoryPanel } from "./history";
 import { driftInfo, legend, selectionInfo, statusBar } from "./panels";
+import { RangeConfirm } from "./rangeConfirm";
 import { RefusalView } from "./refusal";
 import { EditorToolbar } from "./toolbar";
 
@@ -93,8 +94,9 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
   const submitMsg = h("span", { class: "submit-msg", "data-testid": "submit-msg" });
   const bottom = h("div", { class: "bottom" }, h("div", { class: "chart-wrap" }, h("span", { class: "chart-title" }, "Correction (m) along the run"), chart.canvas), h("div", { class: "status-row" }, statusEl, submitMsg));
   const conflict = new ConflictPanel({ reapply: () => void ctl.reloadAndReapply(), discard: () => void ctl.reloadDiscarding() });
+  const rangeConfirm = new RangeConfirm();
   const refusal = new RefusalView(() => store.update(dismissRefusal));
-  const root = h("div", { class: "editor" }, toolbar.el, errorBox, conflict.newerBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict.dialog, refusal.live);
+  const root = h("div", { class: "editor" }, toolbar.el, errorBox, conflict.newerBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict.dialog, rangeConfirm.el, refusal.live);
   main.append(root);
   ctl.onNotice = notify;
 
@@ -143,6 +145,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
       case "escape":
         store.update((x) => dismissRefusal(select(x, null)));
         images.close();
+        rangeConfirm.close();
         break;
     }
     const sel = store.get().selected;
@@ -177,7 +180,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
         map,
         store,
         commitMove: (i, p) => ctl.commitMove(i, p),
-        commitRange: (a, b) => ctl.commitRange(a, b),
+        commitRange: (a, b) => rangeConfirm.ask(store.get(), a, b, () => ctl.commitRange(a, b)),
         openImages: (i) => openImages(i),
       });
       mapEl.dataset.ready = "true";
