@@ -100,6 +100,10 @@ def test_nobody_reviews_their_own_work(env: Env) -> None:
     assert other.status_code == 403
     assert env.client("reviewer").get("/api/v1/review/queue").json() == []
     assert len(env.client("reviewer2").get("/api/v1/review/queue").json()) == 1
+    for feedback in (None, "  "):  # a rejection needs a reason; nothing changes without one
+        bare = env.client("reviewer2").post(f"/api/v1/assignments/{mine['id']}/review", json={"decision": "reject", "feedback": feedback})
+        assert bare.status_code == 422 and "feedback" in bare.text, bare.text
+    assert env.client("reviewer2").get(f"/api/v1/assignments/{mine['id']}").json()["status"] == "submitted"
     ok = env.client("reviewer2").post(f"/api/v1/assignments/{mine['id']}/review", json={"decision": "reject", "feedback": "off road"})
     assert ok.status_code == 200 and ok.json()["status"] == "rejected" and ok.json()["feedback"] == "off road"
     # the reviewer (as worker) sees the feedback on their own assignment

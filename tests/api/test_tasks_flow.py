@@ -66,7 +66,7 @@ def test_conflicting_corrections_are_flagged_reviewed_and_merged(env: Env) -> No
     for aid in (a1["id"], a2["id"]):
         r = env.client("reviewer").post(f"/api/v1/assignments/{aid}/review", json={"decision": "approve", "feedback": "ok"})
         assert r.status_code == 200, r.text
-    again = env.client("reviewer").post(f"/api/v1/assignments/{a1['id']}/review", json={"decision": "reject"})
+    again = env.client("reviewer").post(f"/api/v1/assignments/{a1['id']}/review", json={"decision": "reject", "feedback": "late"})
     assert again.status_code == 409 and again.json()["error"] == "not_reviewable"
     env.drain()
 

@@ -158,7 +158,13 @@ class SubmitOut(BaseModel):
 
 class ReviewIn(BaseModel):
     decision: Literal["approve", "reject"]
-    feedback: str | None = Field(default=None, max_length=4000)
+    feedback: str | None = Field(default=None, max_length=4000, description="required to reject (the operator is shown it), optional to approve")
+
+    @model_validator(mode="after")
+    def _reject_needs_reason(self) -> ReviewIn:
+        if self.decision == "reject" and not (self.feedback or "").strip():
+            raise ValueError("feedback: a rejection needs a reason the operator can act on")
+        return self
 
 
 class TransitionPublic(BaseModel):
