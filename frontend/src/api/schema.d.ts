@@ -1908,7 +1908,10 @@ export interface components {
              * @enum {string}
              */
             decision: "approve" | "reject";
-            /** Feedback */
+            /**
+             * Feedback
+             * @description required to reject (the operator is shown it), optional to approve
+             */
             feedback?: string | null;
         };
         /** ReviewQueueItem */
