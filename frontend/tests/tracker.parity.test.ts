@@ -9,7 +9,7 @@ import { mkdtempSync, readFileSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { join, resolve } from "node:path";
 import { afterAll, describe, expect, it } from "vitest";
-import { loadFingerprints, loadModel, parseWalk, trackWalk } from "../src/tracker";
+import { Tracker, loadFingerprints, loadModel, parseWalk, trackWalk } from "../src/tracker";
 
 const REPO = resolve(__dirname, "../..");
 const PYTHON = process.env.POSEFIX_PYTHON ?? join(REPO, ".venv/bin/python");
@@ -82,5 +82,22 @@ describe("model and fingerprint files: errors name the file and the member", () 
     expect(m.step.heading_bias_rad).toBeCloseTo(0.07, 12);
     expect(m.sigmas.wifi_corr_s).toBe(20);
     expect(m.georef).not.toBeNull();
+  });
+});
+
+describe("modes and the converged flag", () => {
+  it("a known start is one mode; an unknown start is many, and not converged", async () => {
+    const m = await loadModel(new Uint8Array(readFileSync(join(out, "site1.npz"))));
+    const known = new Tracker(m, { start: [81.3, 93.3] });
+    expect(known.modes()).toHaveLength(1);
+    expect(known.converged()).toBe(true);
+    const unknown = new Tracker(m, {});
+    const modes = unknown.modes();
+    expect(modes.length).toBeGreaterThan(50);
+    expect(unknown.converged()).toBe(false);
+    const total = modes.reduce((a, b) => a + b.mass, 0);
+    expect(total).toBeGreaterThanOrEqual(0.99);
+    expect(total).toBeLessThanOrEqual(1 + 1e-9);
+    for (let i = 1; i < modes.length; i++) expect(modes[i].mass).toBeLessThanOrEqual(modes[i - 1].mass);
   });
 });

@@ -225,29 +225,31 @@ export class Tracker {
   /** The live distribution's modes: greedy clusters of `radius_m` around the likeliest vertices, covering `coverage` of the mass. */
   modes(radius_m = 5, coverage = 0.99): Mode[] {
     const g = this.model.graph;
-    const { p: probs, live: liveV } = this.forward.probabilities();
-    const live = Array.from(liveV);
-    const p = new Map<number, number>();
-    let total = 0;
-    live.forEach((v, i) => {
-      p.set(v, probs[i]);
-      total += probs[i];
-    });
-    live.sort((a, b) => p.get(b)! - p.get(a)! || a - b);
+    const { p, live } = this.forward.probabilities();
+    const order = Uint32Array.from(live.keys()).sort((a, b) => p[b] - p[a] || a - b);
     const seeds: { v: number; mass: number; sx: number; sy: number }[] = [];
     let covered = 0;
     const r2 = radius_m * radius_m;
-    for (const v of live) {
-      if (covered >= coverage * total) break;
-      const pv = p.get(v)!;
+    for (const i of order) {
+      if (covered >= coverage) break;
+      const v = live[i];
+      const pv = p[i];
       covered += pv;
-      let home = seeds.find((s) => (g.px[s.v] - g.px[v]) ** 2 + (g.py[s.v] - g.py[v]) ** 2 <= r2);
+      let home = null;
+      for (const s of seeds) {
+        const dx = g.px[s.v] - g.px[v];
+        const dy = g.py[s.v] - g.py[v];
+        if (dx * dx + dy * dy <= r2) {
+          home = s;
+          break;
+        }
+      }
       if (!home) seeds.push((home = { v, mass: 0, sx: 0, sy: 0 }));
       home.mass += pv;
       home.sx += pv * g.px[v];
       home.sy += pv * g.py[v];
     }
-    return seeds.map((s) => ({ x: s.sx / s.mass, y: s.sy / s.mass, mass: s.mass / total }));
+    return seeds.map((s) => ({ x: s.sx / s.mass, y: s.sy / s.mass, mass: s.mass })).sort((a, b) => b.mass - a.mass);
   }
 
   /** One mode holds at least `share` of the mass: the summary then describes where the walker is. */
