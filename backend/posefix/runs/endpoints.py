@@ -35,9 +35,9 @@ UPLOAD_SCHEMA: dict[str, Any] = {
                     "type": "object",
                     "required": ["file", "name"],
                     "properties": {
-                        "file": {"type": "string", "format": "binary", "description": "the run: csv, gpx, geojson, tum, or a zipped KITTI/comma2k19 folder"},
+                        "file": {"type": "string", "format": "binary", "description": "the run: csv, parquet, arrow, gpx, geojson, tum, or a zipped KITTI/comma2k19 folder"},
                         "name": {"type": "string", "minLength": 1, "maxLength": 200},
-                        "format": {"type": "string", "enum": ["csv", "gpx", "geojson", "tum", "kitti", "comma2k19"]},
+                        "format": {"type": "string", "enum": ["csv", "parquet", "arrow", "gpx", "geojson", "tum", "kitti", "comma2k19"]},
                         "origin": {"type": "string", "description": "lat,lon,alt of a TUM run's local frame"},
                         "images": {"type": "array", "items": {"type": "string", "format": "binary"},
                                    "description": "a zip of images, or several image files"},
@@ -198,13 +198,14 @@ def get_keyframes(
     return Response(rendered.body, media_type="application/geo+json", headers=headers, background=background)
 
 
-@router.get("/runs/{run_id}/export", responses={200: {"content": {"text/csv": {}, "application/gpx+xml": {}, "application/geo+json": {}}}, **responses(401, 404, 409, 422)})
+@router.get("/runs/{run_id}/export", responses={200: {"content": {media: {} for media, _ext in service.EXPORT_FORMATS.values()}}, **responses(401, 404, 409, 422)})
 def export_run(
     run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep,
-    format: Annotated[str, Query(pattern="^(csv|gpx|geojson)$")] = "csv",
+    format: Annotated[str, Query(pattern="^(csv|parquet|arrow|gpx|geojson)$")] = "csv",
     revision: Annotated[int | None, Query(ge=0, le=10**9)] = None,
 ) -> StreamingResponse:
-    """The full-rate corrected run of a revision, streamed."""
+    """The full-rate corrected run of a revision, streamed: CSV, Parquet or Arrow IPC (the
+    interchange columns, units in the schema), GPX or GeoJSON."""
     run = get_visible_run(session, principal, settings, run_id)
     stream, media, filename = service.export_stream(session, settings, run, revision, format)
     return StreamingResponse(stream, media_type=media, headers={"Content-Disposition": f'attachment; filename="{filename}"'})

@@ -34,7 +34,11 @@ from posefix.runs.schemas import RunPublic
 from posefix.users.models import Role
 from posefix.users.service import Principal
 
-EXPORT_FORMATS = {"csv": ("text/csv", ".csv"), "gpx": ("application/gpx+xml", ".gpx"), "geojson": ("application/geo+json", ".geojson")}
+EXPORT_FORMATS = {
+    "csv": ("text/csv", ".csv"), "parquet": ("application/vnd.apache.parquet", ".parquet"),
+    "arrow": ("application/vnd.apache.arrow.file", ".arrow"), "gpx": ("application/gpx+xml", ".gpx"),
+    "geojson": ("application/geo+json", ".geojson"),
+}
 # Unix times after 2000-01-01 are read as wall-clock times for the recorded time span.
 EPOCH_2000_S = 946684800.0
 

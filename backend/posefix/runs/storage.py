@@ -36,6 +36,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from posefix.core.run import PoseRun
+from posefix.io.columnar import run_to_arrow, write_parquet_table
 
 BASE_COLUMNS = ("t", "lat", "lon", "alt", "qw", "qx", "qy", "qz")
 GNSS_COLUMNS = ("gnss_lat", "gnss_lon", "gnss_alt")
@@ -92,26 +93,6 @@ def _dev(p: Path) -> int:
 
 # -- full-rate samples -----------------------------------------------------------------
 
-def run_to_table(run: PoseRun) -> pa.Table:
-    q = run.q_body_to_enu_wxyz
-    arrays: dict[str, pa.Array] = {
-        "t": pa.array(run.t_s, pa.float64()), "lat": pa.array(run.lat_deg, pa.float64()),
-        "lon": pa.array(run.lon_deg, pa.float64()), "alt": pa.array(run.alt_m, pa.float64()),
-        "qw": pa.array(q[:, 0]), "qx": pa.array(q[:, 1]), "qy": pa.array(q[:, 2]), "qz": pa.array(q[:, 3]),
-    }
-    if run.has_gnss:
-        for name, a in zip(GNSS_COLUMNS, (run.gnss_lat_deg, run.gnss_lon_deg, run.gnss_alt_m)):
-            arrays[name] = pa.array(np.asarray(a, float))
-    if run.images is not None:
-        arrays[IMAGE_COLUMN] = pa.array(run.images, pa.string())
-    for name, a in run.extra.items():
-        if name in arrays:
-            continue
-        arr = np.asarray(a)
-        arrays[name] = pa.array(arr) if arr.dtype.kind in "fiub" else pa.array([str(v) for v in arr.tolist()], pa.string())
-    return pa.table(arrays)
-
-
 def table_to_run(table: pa.Table, *, orientation_derived: bool, source: str) -> PoseRun:
     cols = {name: table.column(name) for name in table.column_names}
 
@@ -139,12 +120,7 @@ def write_samples(store: FileStore, rel: str, run: PoseRun) -> str:
     dst = store.path(rel)
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = dst.with_name(f".{dst.name}.{uuid.uuid4().hex}.tmp")
-    table = run_to_table(run)
-    # Dictionary encoding only for text (image names repeat): float samples are all distinct,
-    # so trying a dictionary first tripled the write time (360,001 samples: 210 -> 70 ms) and
-    # doubled the read time; zstd level 1 compresses them as well as the default level here.
-    text = [f.name for f in table.schema if pa.types.is_string(f.type)]
-    pq.write_table(table, tmp, compression="zstd", compression_level=1, use_dictionary=text or False)
+    write_parquet_table(run_to_arrow(run), tmp)  # the columnar run file: exact values, units in the schema
     os.replace(tmp, dst)
     return rel
 

@@ -25,7 +25,7 @@ from posefix.config import Settings
 from posefix.errors import BadRequest, PayloadTooLarge, Unprocessable
 
 IMAGE_TYPES = {".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".png": "image/png", ".webp": "image/webp"}
-RUN_EXTENSIONS = {".csv", ".gpx", ".geojson", ".json", ".tum", ".txt", ".zip"}
+RUN_EXTENSIONS = {".csv", ".parquet", ".arrow", ".feather", ".gpx", ".geojson", ".json", ".tum", ".txt", ".zip"}
 MAX_IMAGE_PIXELS = 100_000_000
 _BAD_NAME = re.compile(r"[\x00-\x1f\x7f]")
 CHUNK = 1 << 20

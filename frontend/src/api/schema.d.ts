@@ -646,7 +646,8 @@ export interface paths {
         };
         /**
          * Export Run
-         * @description The full-rate corrected run of a revision, streamed.
+         * @description The full-rate corrected run of a revision, streamed: CSV, Parquet or Arrow IPC (the
+         *     interchange columns, units in the schema), GPX or GeoJSON.
          */
         get: operations["export_run_api_v1_runs__run_id__export_get"];
         put?: never;
@@ -4804,11 +4805,11 @@ export interface operations {
                 "multipart/form-data": {
                     /**
                      * Format: binary
-                     * @description the run: csv, gpx, geojson, tum, or a zipped KITTI/comma2k19 folder
+                     * @description the run: csv, parquet, arrow, gpx, geojson, tum, or a zipped KITTI/comma2k19 folder
                      */
                     file: string;
                     /** @enum {string} */
-                    format?: "csv" | "gpx" | "geojson" | "tum" | "kitti" | "comma2k19";
+                    format?: "csv" | "parquet" | "arrow" | "gpx" | "geojson" | "tum" | "kitti" | "comma2k19";
                     /** @description a zip of images, or several image files */
                     images?: string[];
                     name: string;
@@ -5226,6 +5227,8 @@ export interface operations {
                     "application/geo+json": unknown;
                     "application/gpx+xml": unknown;
                     "application/json": unknown;
+                    "application/vnd.apache.arrow.file": unknown;
+                    "application/vnd.apache.parquet": unknown;
                     "text/csv": unknown;
                 };
             };
