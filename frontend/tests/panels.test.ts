@@ -33,3 +33,12 @@ describe("status bar and toolbar", () => {
     expect(formatRunTime(1700000004, 1700000000)).toBe("4.00 s into the run (2023-11-14 22:13:24 UTC)");
   });
 });
+
+describe("plural", () => {
+  it("puts the noun in the right number", async () => {
+    const { plural } = await import("../src/ui/dom");
+    expect(plural(1, "edit")).toBe("1 edit");
+    expect(plural(0, "edit")).toBe("0 edits");
+    expect(plural(2, "assignment")).toBe("2 assignments");
+  });
+});

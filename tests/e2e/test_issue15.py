@@ -112,3 +112,105 @@ def test_tile_source_name_is_checked_in_the_browser(server, browser):
     name.fill("good-name_2")
     assert name.evaluate("el => el.validity.valid") is True
     page.close()
+
+
+def _ensure_user(server, name: str, role: str) -> None:
+    from tests.e2e.serverkit import PASSWORD
+
+    try:
+        server.srv.cli("users", "create", "--username", name, "--role", role, "--password-stdin", stdin=PASSWORD + "\n")
+    except RuntimeError as err:  # made by an earlier test of this session
+        assert "exist" in str(err).lower() or "taken" in str(err).lower(), err
+
+
+def _task_with_submissions(server, run_id: int, operators: list[str]) -> int:
+    """A task on one run, one submission (a 4 m move of keyframe 8) per operator; its task-run id."""
+    admin = server.srv.client("admin")
+    try:
+        body = {"title": f"review keys {run_id}", "instructions": "Drag keyframes onto the lane.", "run_ids": [run_id],
+                "reward_cents": 10, "currency": "EUR", "assignments_per_run": len(operators), "lease_s": 600,
+                "lifetime_s": 86400, "auto_approval_delay_s": 3600, "priority": 100, "conflict_policy": "flag"}
+        task = admin.post("/api/v1/tasks", json=body)
+        assert task.status_code == 201, task.text
+        fc = admin.get(f"/api/v1/runs/{run_id}/keyframes").json()
+    finally:
+        admin.close()
+    lon, lat = fc["features"][8]["geometry"]["coordinates"][:2]
+    for i, who in enumerate(operators):
+        c = server.srv.client(who)
+        try:
+            a = c.post("/api/v1/tasks/next").json()["assignment"]
+            assert a is not None and a["run_id"] == run_id, a
+            east = (4.0 + i) / (111320 * math.cos(math.radians(lat)))
+            r = c.post(f"/api/v1/assignments/{a['id']}/submit", json={"moves": [{"index": 8, "lon": lon + east, "lat": lat}], "comment": f"by {who}"})
+            assert r.status_code == 200, r.text
+        finally:
+            c.close()
+    return task.json()["runs"][0]["id"]
+
+
+def test_review_by_keyboard_needs_a_reason_to_reject(server, browser, run_id):
+    _ensure_user(server, "rev15", "reviewer")
+    tr_id = _task_with_submissions(server, run_id, ["op1", "op2"])
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    login(page, server, "rev15")
+    page.goto(f"{server.base_url}/#/tasks/review/{tr_id}")
+    page.wait_for_selector(".review-map[data-ready='true']", timeout=30_000)
+    legend = page.get_by_test_id("review-legend").inner_text()
+    assert "consensus" in legend and "reported track" in legend and "disagreement" in legend
+    subs = server.get_json("admin", f"/api/v1/task-runs/{tr_id}/review")["submissions"]
+    first, second = subs[0]["assignment_id"], subs[1]["assignment_id"]
+    page.locator("body").press("r")  # reject the focused (first) submission: no reason yet, so nothing is sent
+    msg = page.get_by_test_id(f"decide-msg-{first}")
+    msg.filter(has_text="needs a reason").wait_for()
+    assert page.evaluate("document.activeElement.dataset.testid") == f"feedback-{first}"
+    page.keyboard.type("keyframe 8 is on the pavement")
+    page.keyboard.press("Enter")
+    page.get_by_test_id(f"submission-{first}").filter(has_text="rejected").wait_for(timeout=15_000)
+    page.locator("body").press("s")  # show the focused (now the second) submission alone on the map
+    n = page.evaluate("() => window.__posefixReviewMap.queryRenderedFeatures({layers: ['rv-tracks']}).map(f => f.properties.aid)")
+    page.wait_for_function(f"() => {{ const a = window.__posefixReviewMap.queryRenderedFeatures({{layers: ['rv-tracks']}}).map(f => f.properties.aid);"
+                           f" return a.length > 0 && a.every(x => x === {second}); }}")
+    assert n is not None
+    page.locator("body").press("a")
+    page.get_by_test_id(f"submission-{second}").filter(has_text="approved").wait_for(timeout=15_000)
+    shot(page, "review-keyboard", docs=True)
+    # The operator sees the reason beside the rejected assignment.
+    op = browser.new_page()
+    rejected_by = next(s["operator"] for s in subs if s["assignment_id"] == first)
+    login(op, server, rejected_by)
+    op.goto(server.base_url + "/#/tasks/work")
+    op.get_by_test_id(f"feedback-{first}").filter(has_text="keyframe 8 is on the pavement").wait_for()
+    op.close()
+    page.close()
+
+
+def test_one_way_through_a_task(server, browser, run_id):
+    admin = server.srv.client("admin")
+    try:
+        body = {"title": f"one way {run_id}", "instructions": "Delete what is wrong.", "run_ids": [run_id], "reward_cents": 10,
+                "currency": "EUR", "assignments_per_run": 1, "lease_s": 600, "lifetime_s": 86400, "auto_approval_delay_s": 3600,
+                "priority": 200, "conflict_policy": "flag"}
+        assert admin.post("/api/v1/tasks", json=body).status_code == 201
+    finally:
+        admin.close()
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    login(page, server, "op2")
+    page.goto(server.base_url + "/#/tasks/work")
+    page.get_by_test_id("next-task").click()
+    page.wait_for_selector("#map[data-ready='true']", timeout=30_000)
+    page.wait_for_function("document.querySelector('.editor').dataset.revision !== ''", timeout=30_000)
+    assert page.locator("button:has-text('Submit')").count() == 1
+    assert page.locator("input[aria-label*='omment']").count() == 1
+    page.locator("#map").focus()
+    page.keyboard.press(".")
+    page.keyboard.press("Delete")
+    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '1'")
+    page.get_by_label("Comment for the reviewer").fill("removed the first keyframe")
+    page.get_by_test_id("task-submit").click()
+    page.get_by_test_id("offer-next").wait_for(timeout=15_000)
+    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '0'")
+    mine = server.get_json("op2", "/api/v1/assignments/mine")
+    sub = next(a for a in mine if a["run_id"] == run_id)
+    assert sub["status"] == "submitted" and sub["comment"] == "removed the first keyframe"
+    page.close()

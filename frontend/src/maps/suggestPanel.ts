@@ -7,7 +7,7 @@ import type { Map as MlMap, MapLayerMouseEvent } from "maplibre-gl";
 import { describeError } from "../api/errors";
 import { SUGGESTION_POINT_LAYER } from "../map/adapter";
 import type { EditorController } from "../ui/editor/controller";
-import { h } from "../ui/dom";
+import { h, plural } from "../ui/dom";
 import { type EditorState, currentEdits, currentSuggestions } from "../state/editor";
 import type { SuggestionsState } from "../state/types";
 import { jobResult, mapsApi } from "./api";
@@ -86,7 +86,7 @@ export class SuggestionsPanel {
     this.ctl.perform(action);
     const r = this.ctl.store.get().refusal;
     if (r) this.notify(r.message);
-    else this.notify(`Accepted ${todo.length - action.skipped.length} suggestions${action.skipped.length ? `; ${action.skipped.length} left out by the rules (${action.skipped[0].message})` : ""}.`);
+    else this.notify(`Accepted ${plural(todo.length - action.skipped.length, "suggestion")}${action.skipped.length ? `; ${action.skipped.length} left out by the rules (${action.skipped[0].message})` : ""}.`);
   }
 
   private render(s: EditorState): void {

@@ -5,7 +5,7 @@
 import type * as maplibregl from "maplibre-gl";
 import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/context";
-import { fmtTime, h } from "../ui/dom";
+import { fmtTime, h, plural } from "../ui/dom";
 import { createMap, fitBoxes } from "../map/createMap";
 import { type Json, type Task, type TaskCreate, tasksApi } from "./api";
 import { fmtReward, requirementText } from "./format";
@@ -166,7 +166,7 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
     }
     try {
       const t = await tasksApi.create(body as TaskCreate);
-      formMsg.textContent = `Task ${t.id} created with ${t.counts?.open ?? 0} assignments open.`;
+      formMsg.textContent = `Task ${t.id} created with ${plural(t.counts?.open ?? 0, "assignment")} open.`;
       void refresh();
     } catch (err) {
       formMsg.textContent = describeError(err);

@@ -43,8 +43,8 @@ function point(c: number[], props: Record<string, unknown>): GeoJSON.Feature {
 export function reviewGeoJSON(v: ReviewView): GeoJSON.FeatureCollection {
   const feats: GeoJSON.Feature[] = [line(v.reported, { kind: "reported", colour: "#64748b" })];
   v.submissions.forEach((s, i) => {
-    if (s.positions) feats.push(line(s.positions, { kind: "track", colour: trackColour(i), who: s.operator ?? "" }));
-    for (const m of s.moves as number[][]) feats.push(point([m[1], m[2]], { kind: "move", colour: trackColour(i), k: m[0] }));
+    if (s.positions) feats.push(line(s.positions, { kind: "track", colour: trackColour(i), who: s.operator ?? "", aid: s.assignment_id }));
+    for (const m of s.moves as number[][]) feats.push(point([m[1], m[2]], { kind: "move", colour: trackColour(i), k: m[0], aid: s.assignment_id }));
   });
   if (v.consensus) {
     feats.push(line(v.consensus, { kind: "consensus", colour: "#111827" }));
@@ -75,13 +75,97 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
   const head = h("div", { class: "review-head" }, h("p", {}, "Loading…"));
   const mapEl = h("div", { class: "review-map", "aria-label": "Submissions on the map" });
   const side = h("aside", { class: "review-side", "aria-label": "Submissions" });
-  main.append(h("section", { class: "review" }, head, h("div", { class: "review-body" }, mapEl, side)));
+  const legend = h("ul", { class: "review-legend", "aria-label": "Map legend", "data-testid": "review-legend" },
+    h("li", {}, h("span", { class: "line-swatch", style: { background: "#64748b" } }), "reported track"),
+    h("li", {}, h("span", { class: "line-swatch", style: { background: trackColour(0) } }), "an operator's corrected track (colour as in the list)"),
+    h("li", {}, h("span", { class: "line-swatch consensus" }), "consensus (dashed)"),
+    h("li", {}, h("span", { class: "dot", style: { background: trackColour(0), border: "1.5px solid #111" } }), "a keyframe an operator moved"),
+    h("li", {}, h("span", { class: "dot", style: { background: "#16a34a" } }), h("span", { class: "dot", style: { background: "#f59e0b" } }),
+      h("span", { class: "dot", style: { background: "#dc2626" } }), "keyframes by disagreement: under 2 m, 2–5 m, over 5 m"));
+  main.append(h("section", { class: "review" }, head, h("div", { class: "review-body" }, h("div", { class: "review-map-wrap" }, mapEl, legend), side)));
   let map: maplibregl.Map | null = null;
   let alive = true;
   cleanups.push(() => {
     alive = false;
     map?.remove();
   });
+
+  // Keyboard review: the focused submission, whether the map shows it alone, a pending reject.
+  let focusAt = 0;
+  let solo = false;
+  let lastJson = "";
+  let view: ReviewView | null = null;
+  const cards = new Map<number, { el: HTMLElement; fb: HTMLInputElement; msg: HTMLElement }>();
+  const keyMsg = h("p", { class: "muted", role: "status", "data-testid": "review-keys-msg" });
+  const pendingIds = () => (view?.submissions ?? []).filter((x) => x.status === "submitted").map((x) => x.assignment_id);
+
+  function focusCard(): void {
+    const ids = pendingIds();
+    if (ids.length === 0) {
+      keyMsg.textContent = "Every submission of this run is reviewed. N: next run in the queue.";
+      return;
+    }
+    focusAt = Math.max(0, Math.min(focusAt, ids.length - 1));
+    for (const [id, c] of cards) c.el.classList.toggle("focused", id === ids[focusAt]);
+    const c = cards.get(ids[focusAt]);
+    c?.el.scrollIntoView({ block: "nearest" });
+    keyMsg.textContent = `Submission ${focusAt + 1} of ${ids.length} (${c?.el.dataset.operator ?? ""}). J/K: next/previous · A: approve · R: reject (needs a reason) · S: show it alone · N: next run`;
+    showSolo();
+  }
+
+  function showSolo(): void {
+    if (!map || !map.getLayer("rv-tracks")) return;
+    const id = pendingIds()[focusAt];
+    const f = solo && id !== undefined ? (["==", ["get", "aid"], id] as never) : null;
+    map.setFilter("rv-tracks", f ? (["all", ["==", ["get", "kind"], "track"], f] as never) : (["==", ["get", "kind"], "track"] as never));
+    map.setFilter("rv-moves", f ? (["all", ["==", ["get", "kind"], "move"], f] as never) : (["==", ["get", "kind"], "move"] as never));
+  }
+
+  async function decide(id: number, d: "approve" | "reject"): Promise<void> {
+    const c = cards.get(id);
+    if (!c) return;
+    if (d === "reject" && !c.fb.value.trim()) {
+      c.msg.textContent = "A rejection needs a reason: type it, then press Enter.";
+      c.fb.dataset.rejectPending = "true";
+      c.fb.focus();
+      return;
+    }
+    try {
+      await tasksApi.review(id, d, c.fb.value);
+      await load();
+    } catch (err) {
+      c.msg.textContent = describeError(err);
+    }
+  }
+
+  async function nextRun(): Promise<void> {
+    try {
+      const q = await tasksApi.reviewQueue();
+      const next = q.find((x) => x.task_run_id !== taskRunId);
+      if (next) ctx.navigate(`#/tasks/review/${next.task_run_id}`);
+      else keyMsg.textContent = "Nothing else to review.";
+    } catch (err) {
+      keyMsg.textContent = describeError(err);
+    }
+  }
+
+  const onKey = (e: KeyboardEvent) => {
+    const t = e.target as HTMLElement | null;
+    if (t && (t.tagName === "INPUT" || t.tagName === "TEXTAREA" || t.tagName === "SELECT") || e.ctrlKey || e.metaKey || e.altKey) return;
+    const ids = pendingIds();
+    const k = e.key.toLowerCase();
+    if (k === "j" || e.key === "ArrowDown") focusAt = Math.min(focusAt + 1, Math.max(ids.length - 1, 0));
+    else if (k === "k" || e.key === "ArrowUp") focusAt = Math.max(focusAt - 1, 0);
+    else if (k === "a" && ids.length) void decide(ids[focusAt], "approve");
+    else if (k === "r" && ids.length) void decide(ids[focusAt], "reject");
+    else if (k === "s") solo = !solo;
+    else if (k === "n") void nextRun();
+    else return;
+    e.preventDefault();
+    if (k !== "r") focusCard();
+  };
+  window.addEventListener("keydown", onKey);
+  cleanups.push(() => window.removeEventListener("keydown", onKey));
 
   async function load() {
     let v: ReviewView;
@@ -91,6 +175,10 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
       head.replaceChildren(h("p", { class: "error", role: "alert" }, describeError(err)));
       return;
     }
+    const json = JSON.stringify(v);
+    if (json === lastJson) return; // a poll with nothing new keeps typed feedback and focus
+    lastJson = json;
+    view = v;
     head.replaceChildren(h("div", {},
       h("h1", {}, `Task ${v.task_id} · run ${v.run_id} `, h("span", { class: `status status-${v.status}`, "data-testid": "review-state" }, v.status)),
       v.merged_revision !== null ? h("p", { "data-testid": "review-merged" }, `Merged as revision ${v.merged_revision}.`) : null,
@@ -100,8 +188,10 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
               ? `Keyframe ${c.index} moved ${Number(c.distance_m).toFixed(1)} m apart by assignments ${c.a} and ${c.b}`
               : `Tracks of assignments ${c.a} and ${c.b} are up to ${Number(c.max_separation_m).toFixed(1)} m apart over keyframes ${c.first}–${c.last}`)))
         : h("p", { class: "muted" }, "No conflict."),
+      keyMsg,
     ));
     const worst = worstKeyframes(v.disagreement_m ?? [], 8, 0.5);
+    cards.clear();
     side.replaceChildren(h("div", {},
       h("h2", {}, "Disagreement per keyframe"),
       disagreementChart(v.disagreement_m ?? []),
@@ -110,30 +200,30 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
         h("tbody", {}, ...worst.map(([k, d]) => h("tr", {}, h("td", {}, String(k)), h("td", {}, d.toFixed(2)))))) : null,
       h("h2", {}, "Submissions"),
       ...v.submissions.map((s, i) => {
-        const fb = h("input", { placeholder: "Feedback", "aria-label": `Feedback for ${s.operator ?? s.assignment_id}` });
-        const msg = h("span", { role: "status" });
-        const decide = async (d: "approve" | "reject") => {
-          try {
-            await tasksApi.review(s.assignment_id, d, fb.value);
-            void load();
-          } catch (err) {
-            msg.textContent = describeError(err);
-          }
-        };
-        return h("article", { class: "submission", "data-testid": `submission-${s.assignment_id}` },
+        const id = s.assignment_id;
+        const fb = h("input", { placeholder: "Feedback (required to reject)", "aria-label": `Feedback for ${s.operator ?? id}`, "data-testid": `feedback-${id}` });
+        fb.addEventListener("keydown", (e) => {
+          if (e.key === "Enter" && fb.dataset.rejectPending === "true") void decide(id, "reject");
+          if (e.key === "Escape") fb.blur();
+        });
+        const msg = h("span", { role: "status", "data-testid": `decide-msg-${id}` });
+        const el = h("article", { class: "submission", "data-testid": `submission-${id}`, "data-operator": s.operator ?? "?" },
           h("h3", {}, h("span", { class: "swatch", style: { background: trackColour(i) } }), ` ${s.operator ?? "?"} `,
             h("span", { class: `status status-${s.status}` }, s.status)),
-          h("p", { class: "muted" }, `${s.moves.length} moves, ${s.deleted.length} deleted · ${fmtTime(s.submitted_at)}`,
+          h("p", { class: "muted" }, `${s.moves.length} move${s.moves.length === 1 ? "" : "s"}, ${s.deleted.length} deleted · ${fmtTime(s.submitted_at)}`,
             s.consensus_error_m !== null ? ` · ${s.consensus_error_m.toFixed(2)} m from consensus` : ""),
           s.comment ? h("p", {}, `“${s.comment}”`) : null,
           s.status === "submitted"
             ? h("div", { class: "decide" }, fb,
-                h("button", { type: "button", class: "primary", "data-testid": `approve-${s.assignment_id}`, onclick: () => void decide("approve") }, "Approve"),
-                h("button", { type: "button", "data-testid": `reject-${s.assignment_id}`, onclick: () => void decide("reject") }, "Reject"), msg)
+                h("button", { type: "button", class: "primary", "data-testid": `approve-${id}`, onclick: () => void decide(id, "approve") }, "Approve"),
+                h("button", { type: "button", "data-testid": `reject-${id}`, onclick: () => void decide(id, "reject") }, "Reject"), msg)
             : null,
         );
+        cards.set(id, { el, fb, msg });
+        return el;
       }),
     ));
+    focusCard();
     await drawMap(v);
   }
 
@@ -166,12 +256,12 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
         paint: { "circle-radius": 6, "circle-color": ["get", "colour"], "circle-stroke-color": "#111", "circle-stroke-width": 1.5 } });
       fitBoxes(m, v.reported.map((c) => [c[0], c[1], c[0], c[1]]));
       mapEl.dataset.ready = "true";
+      showSolo();
     });
   }
 
   void load();
   const poll = window.setInterval(() => void load(), 4000);
   cleanups.push(() => window.clearInterval(poll));
-  void ctx;
   return () => cleanups.reverse().forEach((f) => f());
 }

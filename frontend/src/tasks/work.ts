@@ -6,7 +6,7 @@
 import { editsBody } from "../api/convert";
 import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/context";
-import { fmtTime, h } from "../ui/dom";
+import { fmtTime, h, plural } from "../ui/dom";
 import { renderEditor } from "../ui/editor/view";
 import { type OperatorStats, tasksApi } from "./api";
 import { fmtRemaining, fmtReward, leaseUrgent, remainingAt } from "./format";
@@ -18,7 +18,7 @@ export function statsCard(s: OperatorStats): HTMLElement {
     h("dt", {}, "Submitted"), h("dd", {}, String(s.submitted)),
     h("dt", {}, "Approved"), h("dd", {}, String(s.approved)),
     h("dt", {}, "Rejected"), h("dd", {}, String(s.rejected)),
-    h("dt", {}, "Accuracy on gold runs"), h("dd", {}, s.gold_scored ? `${num(s.accuracy_m)} m (${s.gold_scored} runs)` : "not measured yet"),
+    h("dt", {}, "Accuracy on gold runs"), h("dd", {}, s.gold_scored ? `${num(s.accuracy_m)} m (${plural(s.gold_scored, "run")})` : "not measured yet"),
     h("dt", {}, "Distance to consensus"), h("dd", {}, num(s.agreement_m, 2, " m")),
     h("dt", {}, "Throughput"), h("dd", {}, s.throughput_per_h === null ? "—" : `${s.throughput_per_h.toFixed(1)} per hour`),
     h("dt", {}, "Qualification test"), h("dd", {}, s.test_status.replace("_", " ")),
@@ -66,7 +66,7 @@ export function renderWork(main: HTMLElement, ctx: AppContext): void {
           h("td", {}, a.status === "accepted" ? h("a", { href: `#/tasks/work/${a.id}` }, a.task.title) : a.task.title),
           h("td", {}, String(a.run_id)),
           h("td", {}, h("span", { class: `status status-${a.status}` }, a.status)),
-          h("td", {}, a.feedback ?? ""),
+          h("td", { "data-testid": `feedback-${a.id}` }, a.feedback ?? ""),
           h("td", {}, fmtTime(a.leased_at)),
         ))))),
     (err) => leases.replaceChildren(h("p", { class: "error", role: "alert" }, describeError(err))),
@@ -85,7 +85,7 @@ export function renderAssignment(main: HTMLElement, ctx: AppContext, assignmentI
   tasksApi.assignment(assignmentId).then((a) => {
     if (a.status !== "accepted") {
       bar.replaceChildren(h("p", { role: "status", "data-testid": "assignment-closed" },
-        `This assignment is ${a.status}.`, " ", h("a", { href: "#/tasks/work" }, "Back to work")));
+        `This assignment is ${a.status}.`, a.feedback ? h("span", { "data-testid": "assignment-feedback" }, ` Reviewer's reason: “${a.feedback}”.`) : "", " ", h("a", { href: "#/tasks/work" }, "Back to work")));
       return;
     }
     let loadedAt = Date.now();
@@ -93,11 +93,23 @@ export function renderAssignment(main: HTMLElement, ctx: AppContext, assignmentI
     const leaseS = a.lease_expires_at && a.leased_at ? (Date.parse(a.lease_expires_at) - Date.parse(a.leased_at)) / 1000 : remaining0;
     const clock = h("span", { class: "lease-timer", "data-testid": "lease-timer", role: "timer", "aria-live": "off" }, fmtRemaining(remaining0));
     const msg = h("span", { class: "task-msg", role: "status", "data-testid": "task-msg" });
-    const comment = h("input", { placeholder: "Comment for the reviewer (optional)", "aria-label": "Comment for the reviewer" });
-    let ctlRef: { submit(c: string): Promise<void> } | null = null;
+    let leaseOver = false;
+    let submitted = false;
     const extendBtn = h("button", { type: "button", "data-testid": "extend" }, "Extend lease");
     const returnBtn = h("button", { type: "button", "data-testid": "return" }, "Return");
-    const submitBtn = h("button", { type: "button", class: "primary", "data-testid": "task-submit" }, "Submit to task");
+    const nextBtn = h("button", { type: "button", class: "primary", "data-testid": "offer-next", hidden: true }, "Next task");
+    nextBtn.addEventListener("click", async () => {
+      nextBtn.disabled = true;
+      try {
+        const r = await tasksApi.next();
+        if (r.assignment) ctx.navigate(`#/tasks/work/${r.assignment.id}`);
+        else msg.replaceChildren(r.message, " ", h("a", { href: "#/tasks/work" }, "Back to work"));
+      } catch (err) {
+        msg.textContent = describeError(err);
+      } finally {
+        nextBtn.disabled = false;
+      }
+    });
     extendBtn.addEventListener("click", async () => {
       try {
         const x = await tasksApi.extend(a.id);
@@ -116,13 +128,12 @@ export function renderAssignment(main: HTMLElement, ctx: AppContext, assignmentI
         msg.textContent = describeError(err);
       }
     });
-    submitBtn.addEventListener("click", () => void ctlRef?.submit(comment.value));
     const tick = () => {
       const left = remainingAt(remaining0, loadedAt, Date.now());
       clock.textContent = fmtRemaining(left);
       clock.classList.toggle("urgent", leaseUrgent(left, leaseS));
-      if (left <= 0) {
-        submitBtn.disabled = true;
+      if (left <= 0 && !submitted) {
+        leaseOver = true;
         extendBtn.disabled = true;
         msg.textContent = "The lease is over: this work can no longer be submitted.";
       }
@@ -132,22 +143,26 @@ export function renderAssignment(main: HTMLElement, ctx: AppContext, assignmentI
       h("div", { class: "task-head" },
         h("strong", { "data-testid": "task-title" }, a.task.title),
         h("span", { class: "muted" }, ` · run ${a.run_id} · reward ${fmtReward(a.task.reward_cents, a.task.currency)} · lease `),
-        clock, h("span", { class: "grow" }), comment, extendBtn, returnBtn, submitBtn),
+        clock, h("span", { class: "grow" }), extendBtn, returnBtn, nextBtn),
       h("details", { open: true }, h("summary", {}, "Instructions"),
         h("p", { class: "instructions", "data-testid": "instructions" }, a.task.instructions || "No instructions.")),
       msg,
     );
     cleanups.push(renderEditor(host, ctx, String(a.run_id), (ctl) => {
-      ctlRef = ctl;
       ctl.submitTo = async (_doc, edits, c) => {
-        await tasksApi.submit(a.id, { ...editsBody(edits), comment: c || comment.value || null });
+        if (leaseOver) throw new Error("The lease is over: this work can no longer be submitted.");
+        if (submitted) throw new Error("This assignment is already submitted.");
+        await tasksApi.submit(a.id, { ...editsBody(edits), comment: c || null });
+        submitted = true;
         window.clearInterval(timer);
-        submitBtn.disabled = extendBtn.disabled = returnBtn.disabled = true;
-        msg.replaceChildren("Submitted — thank you. ", h("a", { href: "#/tasks/work", "data-testid": "back-to-work" }, "Get the next task"));
+        extendBtn.disabled = returnBtn.disabled = true;
+        nextBtn.hidden = false;
+        nextBtn.focus();
+        msg.replaceChildren("Submitted — thank you. ", h("a", { href: "#/tasks/work", "data-testid": "back-to-work" }, "Back to work"));
         clock.textContent = "submitted";
         return "Submitted to the task.";
       };
-    }));
+    }, { label: "Submit to task", commentLabel: "Comment for the reviewer", testId: "task-submit" }));
   }, (err) => bar.replaceChildren(h("p", { class: "error", role: "alert" }, describeError(err))));
   return () => cleanups.reverse().forEach((f) => f());
 }

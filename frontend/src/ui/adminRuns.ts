@@ -2,7 +2,7 @@
 import { api, uploadRun } from "../api/endpoints";
 import { describeError } from "../api/errors";
 import type { AppContext } from "./context";
-import { fmtTime, h } from "./dom";
+import { fmtTime, h, plural } from "./dom";
 
 export function renderAdminRuns(main: HTMLElement, _ctx: AppContext): () => void {
   const name = h("input", { id: "up-name", name: "name", required: true });
@@ -65,7 +65,7 @@ export function renderAdminRuns(main: HTMLElement, _ctx: AppContext): () => void
               ),
             )),
           ),
-          h("p", { class: "muted" }, `${r.total} runs`),
+          h("p", { class: "muted" }, plural(r.total, "run")),
         ),
       (err) => list.replaceChildren(h("p", { class: "error", role: "alert" }, describeError(err))),
     );

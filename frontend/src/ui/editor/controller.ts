@@ -11,6 +11,7 @@ import { type EditAction, actionMarkDeleted, actionMoveKeyframe } from "../../ac
 import { checkBatch } from "../../rules/apply";
 import { type EditorState, currentEdits, editCount, editorNew } from "../../state/editor";
 import { Store } from "../../state/store";
+import { plural } from "../dom";
 import type { Edits, LonLat, RunDoc } from "../../state/types";
 
 const PREVIEW_DEBOUNCE_MS = 60;
@@ -101,7 +102,7 @@ export class EditorController {
     const saved = this.saved();
     if (saved && saved.base_revision === doc.revision) {
       this.store.update((s) => loadDoc(s, doc, { label: "Restore unsaved edits", edits: editsFromBody(saved.body) }));
-      this.onNotice(`Restored ${editCount(currentEdits(this.store.get()))} unsaved edits from your last visit.`);
+      this.onNotice(`Restored ${plural(editCount(currentEdits(this.store.get())), "unsaved edit")} from your last visit.`);
     } else if (saved && editCount(editsFromBody(saved.body)) > 0) {
       // Unsaved work made against an older revision: same screen as a stale submit.
       this.store.update((s) => ({
@@ -197,7 +198,8 @@ export class EditorController {
       try {
         const notice = await this.submitTo(doc, edits, comment);
         localStorage.removeItem(this.storageKey);
-        this.store.update((x) => ({ ...x, submit: { kind: "idle" } }));
+        // The submission holds the edits now: the editor shows nothing unsaved.
+        this.store.update((x) => ({ ...loadDoc(x, doc), submit: { kind: "idle" } }));
         this.onNotice(notice);
       } catch (err) {
         this.submitFailed(err, doc);
@@ -295,8 +297,8 @@ export class EditorController {
     this.store.update((s) => loadDoc(s, doc, editCount(kept) ? { label: "Re-apply unsaved edits", edits: kept } : undefined));
     this.onNotice(
       check.refusals.length
-        ? `Reloaded revision ${doc.revision}. ${check.refusals.length} edits no longer pass the rules and were dropped: ${check.refusals.map((r) => r.message).join(" ")}`
-        : `Reloaded revision ${doc.revision} and re-applied ${editCount(kept)} unsaved edits.`,
+        ? `Reloaded revision ${doc.revision}. ${plural(check.refusals.length, "edit")} no longer ${check.refusals.length === 1 ? "passes" : "pass"} the rules and ${check.refusals.length === 1 ? "was" : "were"} dropped: ${check.refusals.map((r) => r.message).join(" ")}`
+        : `Reloaded revision ${doc.revision} and re-applied ${plural(editCount(kept), "unsaved edit")}.`,
     );
   }
 

@@ -7,7 +7,7 @@ import { type RevisionPublic, api } from "../../api/endpoints";
 import { describeError } from "../../api/errors";
 import type { EditorState, RevisionCompare } from "../../state/editor";
 import type { Store } from "../../state/store";
-import { fmtTime, h } from "../dom";
+import { fmtTime, h, plural } from "../dom";
 import { CorrectionChart } from "./chart";
 import type { EditorController } from "./controller";
 import { button } from "./toolbar";
@@ -15,9 +15,6 @@ import { button } from "./toolbar";
 /** Roles the server lets revert (admin, reviewer, operator). */
 const MAY_REVERT = new Set(["admin", "reviewer", "operator"]);
 
-export function plural(n: number, one: string, many = `${one}s`): string {
-  return `${n} ${n === 1 ? one : many}`;
-}
 
 function reviewText(r: RevisionPublic): string {
   if (!r.review) return "";

@@ -3,8 +3,7 @@
  * ones and those of earlier revisions), with Delete focused (Enter) and Cancel (Escape, through the editor's keys).
  */
 import { type EditorState, currentEdits } from "../../state/editor";
-import { h } from "../dom";
-import { plural } from "./history";
+import { h, plural } from "../dom";
 import { button } from "./toolbar";
 
 /** The moves a deletion of `lo..hi` would drop, in keyframe order. */

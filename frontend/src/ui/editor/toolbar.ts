@@ -17,6 +17,15 @@ export interface ToolbarActions {
   submit(comment: string): void;
 }
 
+/** How the Submit control reads: a task page submits to its assignment. */
+export interface SubmitOptions {
+  label: string;
+  commentLabel: string;
+  testId: string;
+}
+
+export const RUN_SUBMIT: SubmitOptions = { label: "Submit", commentLabel: "Comment for this submission", testId: "submit" };
+
 export function button(label: string, onclick: () => void, attrs: Record<string, unknown> = {}): HTMLButtonElement {
   return h("button", { type: "button", onclick, ...attrs }, label);
 }
@@ -24,7 +33,7 @@ export function button(label: string, onclick: () => void, attrs: Record<string,
 export class EditorToolbar {
   readonly el: HTMLElement;
   readonly title = h("h1", { class: "run-title" }, "Loading run…");
-  readonly comment = h("input", { id: "submit-comment", placeholder: "Comment (optional)", "aria-label": "Comment for this submission" });
+  readonly comment: HTMLInputElement;
   private readonly undoBtn: HTMLButtonElement;
   private readonly redoBtn: HTMLButtonElement;
   private readonly deleteBtn: HTMLButtonElement;
@@ -34,7 +43,7 @@ export class EditorToolbar {
   private readonly submitBtn: HTMLButtonElement;
 
   /** `extra`: more tools (the suggestions) placed after the view buttons. */
-  constructor(a: ToolbarActions, extra: HTMLElement[]) {
+  constructor(a: ToolbarActions, extra: HTMLElement[], submit: SubmitOptions = RUN_SUBMIT) {
     this.undoBtn = button("↶ Undo", a.undo, { "data-testid": "undo" });
     this.redoBtn = button("↷ Redo", a.redo, { "data-testid": "redo" });
     this.deleteBtn = button("Delete", a.toggleDelete, { "data-testid": "delete", title: "Mark the selected keyframe for deletion (Delete)" });
@@ -45,7 +54,8 @@ export class EditorToolbar {
     this.imagesBtn = button("Images", a.images, { "data-testid": "images-button", title: "Images of the selected keyframe (I)" });
     const fitBtn = button("Fit", a.fit, { title: "Zoom to the whole run (F)" });
     const historyBtn = button("History", a.history, { "data-testid": "history", title: "Revisions, compare, revert (H)" });
-    this.submitBtn = button("Submit", () => a.submit(this.comment.value), { class: "primary", "data-testid": "submit" });
+    this.comment = h("input", { id: "submit-comment", placeholder: `${submit.commentLabel} (optional)`, "aria-label": submit.commentLabel });
+    this.submitBtn = button(submit.label, () => a.submit(this.comment.value), { class: "primary", "data-testid": submit.testId });
     const sep = () => h("span", { class: "sep" });
     this.el = h("div", { class: "toolbar", role: "toolbar", "aria-label": "Editing tools" },
       this.title, this.undoBtn, this.redoBtn, sep(), this.deleteBtn, this.rangeBtn, acceptBtn, resetBtn, sep(), this.ghostBtn, this.imagesBtn, fitBtn, historyBtn,

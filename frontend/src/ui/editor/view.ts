@@ -25,7 +25,7 @@ import { HistoryPanel } from "./history";
 import { driftInfo, legend, selectionInfo, statusBar } from "./panels";
 import { RangeConfirm } from "./rangeConfirm";
 import { RefusalView } from "./refusal";
-import { EditorToolbar } from "./toolbar";
+import { EditorToolbar, type SubmitOptions } from "./toolbar";
 
 function keysHelp(): HTMLElement {
   return h("ul", { class: "keys" },
@@ -37,7 +37,7 @@ function keysHelp(): HTMLElement {
   );
 }
 
-export function renderEditor(main: HTMLElement, app: AppContext, runId: string, onController?: (ctl: EditorController) => void): () => void {
+export function renderEditor(main: HTMLElement, app: AppContext, runId: string, onController?: (ctl: EditorController) => void, submitOpts?: SubmitOptions): () => void {
   const ctl = new EditorController(runId);
   onController?.(ctl);
   const store = ctl.store;
@@ -64,8 +64,10 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     images: () => openImages(store.get().selected),
     fit: () => fit(),
     history: () => history.toggle(),
-    submit: (comment) => void ctl.submit(comment),
-  }, suggest.elements);
+    submit: (comment) => void ctl.submit(comment).then(() => {
+      if (editCount(currentEdits(store.get())) === 0) toolbar.comment.value = "";
+    }),
+  }, suggest.elements, submitOpts);
 
   const mapEl = h("div", { class: "map", id: "map", "aria-label": "Map of the run; drag keyframes to correct them", role: "application", tabindex: "0" });
   const legendBox = h("div", { class: "legend-box" });
@@ -209,7 +211,8 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     root.dataset.previewCurrent = String(!!s.preview && s.preview.forEdits === currentEdits(s));
 
     const sub = s.submit;
-    submitMsg.textContent = sub.kind === "error" ? sub.message : sub.kind === "done" ? `Saved as revision ${sub.revision}.` : "";
+    const unsaved = editCount(currentEdits(s));
+    submitMsg.textContent = sub.kind === "error" ? sub.message : sub.kind === "done" && unsaved === 0 ? `Saved as revision ${sub.revision}.` : "";
     submitMsg.className = `submit-msg ${sub.kind === "error" ? "error" : ""}`;
     errorBox.hidden = !s.error;
     errorBox.textContent = s.error ?? "";
