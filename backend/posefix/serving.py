@@ -38,8 +38,19 @@ def app_from_environment():  # type: ignore[no-untyped-def]
     return create_app(Settings(), embedded_worker=False)
 
 
+def _die_with_parent() -> None:
+    """In the child: SIGTERM when the parent dies, even by SIGKILL (Linux prctl; elsewhere nothing)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def start_job_worker() -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-c", "from posefix.cli import main; main(['worker'])"])
+    return subprocess.Popen([sys.executable, "-c", "from posefix.cli import main; main(['worker'])"],
+                            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
 
 
 def stop_job_worker(proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
