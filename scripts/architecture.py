@@ -38,7 +38,7 @@ def unit_of(module: str) -> str | None:
 
 
 def package_edges() -> dict[str, set[str]]:
-    graph = grimp.build_graph("posefix", include_external_packages=False)
+    graph = grimp.build_graph("posefix", include_external_packages=False, cache_dir=None)
     edges: dict[str, set[str]] = {}
     for m in graph.modules:
         src = unit_of(m)

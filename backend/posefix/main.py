@@ -152,6 +152,7 @@ def ops_router() -> APIRouter:
 
 
 def api_router() -> APIRouter:
+    from posefix.audit.endpoints import router as audit_router
     from posefix.edits.endpoints import router as edits_router
     from posefix.jobs.endpoints import router as jobs_router
     from posefix.maps.endpoints import router as maps_router
@@ -162,6 +163,7 @@ def api_router() -> APIRouter:
 
     router = APIRouter(prefix=API_PREFIX)
     router.include_router(users_router)
+    router.include_router(audit_router)
     router.include_router(runs_router)
     router.include_router(edits_router)
     router.include_router(jobs_router)

@@ -17,7 +17,7 @@ CORE = ("posefix.core", "posefix.mapmatch", "posefix.io")
 
 @pytest.fixture(scope="module")
 def graph() -> grimp.ImportGraph:
-    return grimp.build_graph("posefix", include_external_packages=True)
+    return grimp.build_graph("posefix", include_external_packages=True, cache_dir=None)
 
 
 def own_modules(graph: grimp.ImportGraph) -> list[str]:
@@ -83,6 +83,23 @@ def test_tarjan_finds_a_planted_circle():
 def test_no_module_imports_itself_back(graph):
     circles = strongly_connected(own_modules(graph), module_edges(graph))
     assert circles == [], f"import circles: {circles}"
+
+
+def package_of(module: str) -> str:
+    return ".".join(module.split(".")[:2])
+
+
+def test_no_circles_between_packages(graph):
+    """A domain package (runs, edits, tasks, ...) and another never import each other both ways."""
+    packages: dict[str, set[str]] = {}
+    for m, targets in module_edges(graph).items():
+        src = package_of(m)
+        packages.setdefault(src, set()).update(package_of(t) for t in targets if package_of(t) != src)
+    # Top-level modules (posefix.main, posefix.deps, ...) are the app's edge, not packages.
+    is_package = {p for p in packages if any(m.startswith(p + ".") for m in own_modules(graph))}
+    edges = {p: {q for q in qs if q in is_package} for p, qs in packages.items() if p in is_package}
+    circles = strongly_connected(sorted(edges), edges)
+    assert circles == [], f"package circles: {circles}"
 
 
 @pytest.mark.parametrize("core", CORE)

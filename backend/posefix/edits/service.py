@@ -21,34 +21,18 @@ from posefix.edits import repository as edits_repo
 from posefix.edits.models import EditBatch
 from posefix.edits.schemas import MoveIn
 from posefix.core.geodesy import horizontal_distance_m
-from posefix.engine import Edit, Edits, Problem
+from posefix.engine import Edit, Edits
 from posefix.engine.edits import check_batch
 from posefix.errors import BadRequest, Conflict, NotFound, Unprocessable
 from posefix.jobs import repository as jobs
 from posefix.runs import solutions, storage
-from posefix.runs.engine_config import engine_config
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Revision, Run, RunStatus
+from posefix.runs.warm import load_problem, stored_solution
 from posefix.users.models import Role
 from posefix.users.service import Principal
 
 REVISION_JOB = "revision"
-
-
-def load_problem(session: Session, settings: Settings, run: Run) -> Problem:
-    cached = solutions.PROBLEMS.peek(run.id, run.rules)
-    if cached is not None:
-        return cached
-    rev0 = runs_repo.revision(session, run.id, 0)
-    if rev0 is None:
-        raise NotFound(f"run {run.id} has no imported data", code="revision_not_found")
-    samples_file, derived, name, rules = rev0.samples_file, run.orientation_derived, run.name, dict(run.rules)
-
-    def load() -> tuple[Any, Any]:
-        pose = storage.read_samples(storage.FileStore(settings.files_dir), samples_file, orientation_derived=derived, source=name)
-        return pose, engine_config(settings, rules)
-
-    return solutions.PROBLEMS.problem(run.id, rules, load)
 
 
 def edit_set_at(session: Session, run: Run, revision: int) -> dict[str, Any]:
@@ -80,12 +64,6 @@ def revision_base(session: Session, settings: Settings, run: Run, revision: int)
     return value
 
 
-def stored_solution(settings: Settings, run: Run, keyframes_file: str | None) -> solutions.StoredSolution | None:
-    if keyframes_file is None:
-        return None
-    return solutions.StoredSolution.of(settings, keyframes_file, engine_config(settings, run.rules))
-
-
 def _moves(moves: list[MoveIn]) -> list[Edit]:
     return [Edit(m.index, m.lon, m.lat, m.alt) for m in moves]
 
@@ -108,26 +86,6 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
         "flags": [f.to_json() for f in pv.flags],
         "time_ms": round((time.perf_counter() - started) * 1000, 2),
     }
-
-
-def prewarm(db: Any, settings: Settings, run_id: int, revision: int) -> None:
-    """Prepare the run and solve its revision in the background, so the first drag is fast."""
-
-    def work() -> None:
-        with db.transaction(write=False) as session:
-            run = session.get(Run, run_id)
-            if run is None or run.status == RunStatus.deleted:
-                return
-            if solutions.PROBLEMS.solution(run.id, run.rules, revision) is not None:
-                return
-            base, keyframes_file = revision_base(session, settings, run, revision)
-            problem = load_problem(session, settings, run)
-            rules = dict(run.rules)
-            stored = stored_solution(settings, run, keyframes_file)
-        sol = solutions.base_solution(run_id, rules, revision, problem, base, stored)
-        problem.drag_base(sol)  # an unedited run with implausible steps: the first drag's start (engine.drag_base)
-
-    solutions.warm_once(run_id, revision, work)
 
 
 def parse_base(if_match: str | None, body_base: int | None) -> int:

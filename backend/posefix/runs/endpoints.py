@@ -19,6 +19,7 @@ from posefix.runs import repository as repo
 from posefix.runs import service
 from posefix.runs.access import get_visible_run, visible_clause
 from posefix.runs.models import RunStatus
+from posefix.runs.warm import prewarm
 from posefix.users.models import Role
 from posefix.runs.schemas import (
     ImageList, ImagePublic, ReviewRequest, RunEventPublic, RunHistory, RunList, RunPublic,
@@ -180,8 +181,6 @@ def get_keyframes(
     if principal.role in (Role.admin, Role.reviewer, Role.operator) and run.head_revision == (revision if revision is not None else run.revision) \
             and solutions.PROBLEMS.solution(run.id, run.rules, run.head_revision) is None:
         # An editor is about to drag: solve (or load) this revision now, after the response is sent.
-        from posefix.edits.service import prewarm
-
         async def presolve(app: Any = request.app, run_id: int = run.id, number: int = run.head_revision) -> None:
             await anyio.to_thread.run_sync(prewarm, app.state.db, settings, run_id, number, limiter=solver_limiter(app))
 

@@ -29,7 +29,7 @@ from posefix.engine import Edits, prepare
 from posefix.runs import solutions, storage, uploads
 from posefix.runs.engine_config import default_rules, engine_config
 from posefix.runs import repository as repo
-from posefix.runs.models import Keyframe, Revision, Run, RunImage, RunStatus
+from posefix.runs.models import Revision, Run, RunImage, RunStatus
 from posefix.runs.schemas import RunPublic
 from posefix.users.models import Role
 from posefix.users.service import Principal

@@ -19,7 +19,6 @@ of the same job) are removed by ``sweep_revision_files``.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import io
 import json
 import os
@@ -28,6 +27,7 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -190,11 +190,19 @@ def keyframe_arrays(run: PoseRun, index: np.ndarray, max_line_points: int) -> Ke
 
 SOLUTION_FORMAT = 2  # 2: the engine's classes moved (engine.results, core.drift.base)
 # The engine's result types a solution file may hold (nothing else is ever instantiated).
-_SOLUTION_CLASSES = frozenset({
-    "posefix.engine.results:Solution", "posefix.core.keyframes:KeyframeSet", "posefix.core.solver:SolverResult",
-    "posefix.core.drift.base:DriftEstimate", "posefix.core.terms:Terms", "posefix.core.rules:Refusal",
-    "posefix.core.solver:Linearisation",
-})
+@cache
+def _solution_classes() -> dict[str, type]:
+    """The dataclasses a solution file may hold, by the name written for them (an allow-list:
+    a file names classes, and only these are ever built from one)."""
+    from posefix.core.drift.base import DriftEstimate
+    from posefix.core.keyframes import KeyframeSet
+    from posefix.core.rules import Refusal
+    from posefix.core.solver import Linearisation, SolverResult
+    from posefix.core.terms import Terms
+    from posefix.engine.results import Solution
+
+    classes = (Solution, KeyframeSet, SolverResult, DriftEstimate, Terms, Refusal, Linearisation)
+    return {f"{c.__module__}:{c.__qualname__}": c for c in classes}
 
 
 def solution_rel(keyframes_rel: str) -> str:
@@ -214,7 +222,7 @@ def _encode(value: Any, arrays: dict[str, np.ndarray]) -> Any:
         return {"__array__": key}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         name = f"{type(value).__module__}:{type(value).__qualname__}"
-        if name not in _SOLUTION_CLASSES:
+        if name not in _solution_classes():
             raise TypeError(f"{name} is not stored in solution files")
         return {"__dataclass__": name,
                 "fields": {f.name: _encode(getattr(value, f.name), arrays) for f in dataclasses.fields(value)}}
@@ -251,10 +259,9 @@ def _decode(node: Any, arrays: Any) -> Any:
     if "__dict__" in node:
         return {k: _decode(v, arrays) for k, v in node["__dict__"].items()}
     name = node["__dataclass__"]
-    if name not in _SOLUTION_CLASSES:
+    cls = _solution_classes().get(name)
+    if cls is None:
         raise TypeError(f"{name} is not stored in solution files")
-    module, _, qualname = name.partition(":")
-    cls = getattr(importlib.import_module(module), qualname)
     # TypeError when the engine's classes changed since the file was written: a cache miss
     return cls(**{k: _decode(v, arrays) for k, v in node["fields"].items()})
 

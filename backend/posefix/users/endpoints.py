@@ -9,7 +9,6 @@ from fastapi import APIRouter, Query, Request, Response, status
 from posefix.deps import AdminUser, AnyUser, DatabaseDep, SessionDep, SettingsDep, check_origin, client_ip
 from posefix.errors import NotFound, responses
 from posefix.users import repository as repo
-from posefix.users.activity import UserActivity, user_activity
 from posefix.users import service
 from posefix.users.schemas import (
     LoginRequest, TokenCreate, TokenCreated, TokenList, TokenPublic, UserAdminView, UserCreate,
@@ -86,17 +85,6 @@ def get_user(user_id: int, _admin: AdminUser, session: SessionDep) -> UserAdminV
     if user is None:
         raise NotFound(f"user {user_id} not found")
     return UserAdminView.model_validate(user)
-
-
-@router.get("/users/{user_id}/activity", response_model=UserActivity, tags=["users"], responses=responses(401, 403, 404))
-def get_user_activity(
-    user_id: int, _admin: AdminUser, session: SessionDep, limit: Annotated[int, Query(ge=1, le=1000)] = 200,
-) -> UserActivity:
-    """An admin's audit view of one person: the edits they submitted and the reviews they made, newest first."""
-    user = repo.get_user(session, user_id)
-    if user is None:
-        raise NotFound(f"user {user_id} not found")
-    return user_activity(session, user.id, user.username, limit)
 
 
 @router.patch("/users/{user_id}", response_model=UserAdminView, tags=["users"], responses=responses(401, 403, 404, 409))
