@@ -318,7 +318,7 @@ class TestKilledWhileWriting:
 
 class TestIdempotentRevision:
     def test_job_run_twice_writes_revision_once(self, app, client, users, settings):
-        from posefix.edits.tasks import compute_revision
+        from posefix.edits.jobs import compute_revision
         from posefix.jobs.registry import JobContext
 
         rid = upload(client, users["admin"], drive_csv(3000)).json()["id"]

@@ -1,4 +1,4 @@
-"""Keyframes (issue section 3): the samples the optimiser and the editor work on.
+"""Keyframes: the samples the optimiser and the editor work on.
 
 A run of n full-rate samples is reduced to k keyframes: one every S seconds, or one every
 D metres travelled, plus every sample carrying an image (optional) and every sample named

@@ -1,4 +1,4 @@
-"""Propagation of the keyframe correction to every full-rate sample (issue section 5).
+"""Propagation of the keyframe correction to every full-rate sample.
 
 For a sample s between keyframes a and b (rows a <= s <= b) with fraction alpha in [0, 1]
 (distance travelled since a over distance a..b along the reported track: "distance", the

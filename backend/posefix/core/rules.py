@@ -1,4 +1,4 @@
-"""Edit rules (issue section 7): which keyframes an operator may move, and which moves stand.
+"""Edit rules: which keyframes an operator may move, and which moves stand.
 
 Pure functions over plain data so the browser can port them line for line; the cases in
 ``tests/vectors/edit_rules.json`` are checked by pytest here and by vitest in the browser.

@@ -26,7 +26,7 @@ Regimes (``REGIMES``):
   pose inherits through a 10 s low-pass (INS filters follow a biased fix).
 - ``canyon_ins``: the same canyon offsets in the raw GNSS only; the reported pose is a
   GNSS/INS solution that bridged them (smooth 3 m wander as in ``white``), so a location
-  term that trusts the GNSS would pull a good run onto a biased track (section 6's case).
+  term that trusts the GNSS would pull a good run onto a biased track (the case the drift model exists for).
 - ``outliers``: 50 m GNSS outliers in bursts of 1-3 s (about 3 % of fixes) on top of white
   noise; the pose wanders as in ``white`` (its filter gated them out).
 - ``mixed``: canyon offsets + outliers in the GNSS, pose = inherited canyon offsets + drift.

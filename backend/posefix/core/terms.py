@@ -1,4 +1,4 @@
-"""The five terms of the correction problem (issue section 4), each beside its Jacobian.
+"""The five terms of the correction problem, each beside its Jacobian.
 
 State.  Keyframe i has a position ``p_i`` (ENU metres) and an orientation
 ``R_i = R~_i Exp(theta_i)``: a rotation vector ``theta_i`` (radians, body frame) that

@@ -21,7 +21,7 @@ from posefix.jobs import repository as jobs
 from posefix.jobs.registry import JobContext, LeaseLost, PermanentJobError, cleanups, handler_for
 
 # The job kinds a worker runs: importing each module registers its handlers.
-from posefix.edits import tasks as _edit_jobs  # noqa: F401
+from posefix.edits import jobs as _edit_jobs  # noqa: F401
 from posefix.jobs import builtin as _builtin_jobs  # noqa: F401
 from posefix.maps import jobs as _map_jobs  # noqa: F401
 from posefix.tasks import jobs as _task_jobs  # noqa: F401
