@@ -104,11 +104,11 @@ def main(argv: list[str]) -> int:
         return 0
     text = DOC.read_text()
     for name, body in new.items():
-        old = current(text, name)
-        if old is None:
+        if current(text, name) is None:
             raise SystemExit(f"{DOC}: no {markers(name)[0]!r} marker to write between")
         begin, end = markers(name)
-        text = text.replace(f"{begin}\n{old}\n{end}", f"{begin}\n{body}\n{end}")
+        head, tail = text[: text.index(begin) + len(begin)], text[text.index(end):]
+        text = f"{head}\n{body}\n{tail}"
     DOC.write_text(text)
     return 0
 

@@ -114,3 +114,18 @@ def test_the_numerical_core_imports_no_web_or_database_code(graph, core):
             if top in WEB_OR_DB or part in APP_PARTS:
                 offenders.append((m, w))
     assert offenders == [], f"{core} reaches web or database code: {offenders}"
+
+
+def test_architecture_page_matches_the_code():
+    """docs/ARCHITECTURE.md's drawing and file index are what scripts/architecture.py makes
+    from the code now (after moving or adding a module: python scripts/architecture.py --write)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "scripts" / "architecture.py"
+    spec = importlib.util.spec_from_file_location("architecture", path)
+    arch = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(arch)
+    text = arch.DOC.read_text()
+    for name, body in arch.blocks().items():
+        assert arch.current(text, name) == body, f"docs/ARCHITECTURE.md: the {name} block is stale; run python scripts/architecture.py --write"
