@@ -123,9 +123,14 @@ def tile_log() -> Iterator[list[str]]:
 
     handler = Collect(level=logging.DEBUG)
     logger = logging.getLogger("posefix.tiles")
+    # Another test module's app may have set the posefix loggers' level first (the schemathesis
+    # app logs errors only): this test reads warnings whatever ran before it in the process.
+    old_level = logger.level
+    logger.setLevel(logging.DEBUG)
     logger.addHandler(handler)
     yield lines
     logger.removeHandler(handler)
+    logger.setLevel(old_level)
 
 
 def _register(admin: TestClient, server: http.server.ThreadingHTTPServer, host: str | None = None) -> None:
