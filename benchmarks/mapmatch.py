@@ -1,79 +1,85 @@
-"""Map-matching benchmark on the shared indoor floor: ``python -m benchmarks.mapmatch [--quick]``.
+"""Map-matching benchmark on two real floors: ``python -m benchmarks.mapmatch [--quick]``.
 
-Rows (error at the surveyed waypoints, metres):
-  (a) dead reckoning from the known start (same steps, step model and heading bias)
-  (b) CRF, known start           (first waypoint given; it is left out of the errors)
-  (b') the same run's online positions (each step's best vertex given only the past:
-       what a live session shows), against the same targets
-  (b+w) (b) with the WiFi of (d) added: a check of the fusion, not a target. The known
-       start already places the walk better than any WiFi fix, so a fusion that weighs
-       WiFi honestly leaves (b) about unchanged; an excess over (b) is WiFi (f3, f4)
-       evidence counted as stronger than it is. Scans are discounted for their correlation
-       in time (τ = the model's wifi_corr_s, 20 s; ``--wifi-corr-s 0`` counts every scan as
-       independent, the behaviour before the discount)
-  (c) CRF, unknown start         (uniform over all reachable vertices; all waypoints)
-  (d) CRF + WiFi, unknown start  (fingerprints built from the OTHER walks: leave-one-out)
-  WiFi alone: the k-NN position of every scan (between the first and last waypoint) of the
-       walk, from the same leave-one-out fingerprints, against the straight-line position
-       at the scan's time (errors per scan, not per waypoint)
-  floor centroid (reference for (c)/(d)): one constant answer, the mean of all walkable
-       vertices, for every waypoint: what "no information at all" scores on this floor
-Below the table, for (c): the median 1σ major semi-axis of the smoothed start marginal
-p(y_0 | whole walk): how many metres the walk's shape leaves the start undetermined; for
-(d): a 90 % interval of its mean with the walks resampled (how much the figure depends on
-which walks are in the set); for (d) and WiFi alone: the error split by how far the truth is from the
-nearest scan of the other walks (the survey's coverage); for (b), (b+w) and (d): whether the
-reported ellipses are honest — the share of waypoints inside their 2σ ellipse (86 % for a
-calibrated Gaussian; less = overconfident) and the median squared Mahalanobis distance of
-the error (1.39).
+Floors: site1/F1 and site2/F2 of the Indoor Location Competition 2.0 (two buildings whose
+floor files are laid out differently). Walks: ``$POSEFIX_SHARED_DATA`` (or ../shared/data)
+when it holds the floors' walks, else the few walks in the repository's data/ (a fresh
+clone runs on those); the output names the walks it used.
 
-Parameters are never fitted on the walk being scored: two folds (even / odd walks), each
-tracked with the heading bias and the f1/f2 weights learned on the other fold. ``--quick``
-uses every third walk and learns only the heading bias. Positions are the smoothed
-posterior means (forward-backward); time per step is CPU time of one process (one core):
-"online" the tracker's step, "offline" with the back-track and smoothing. Model size is
-the device file (.npz).
+Each floor's walks (sorted by file name) are split in two: the **tuning** part (even
+positions) and the **held-out** part (odd positions). The tuning walks train the model
+(heading bias, step-length scale, f1/f2 weights: ``train_model``) and are the floor's WiFi
+**site survey** (``build_fingerprints``); held-out walks are never trained on and never in
+a survey. Sections (columns):
 
-Data: the full floor (30 walks) at $POSEFIX_SHARED_DATA/indoor-site1-F1 or ../shared/data/indoor-site1-F1
-when present; otherwise the repository's data/indoor-site1-F1 (3 walks: the run works on a fresh
-clone, the figures are then only indicative).
+  F tuning     the floor's tuning walks, tracked with the model trained on them (fingerprints
+               of the OTHER tuning walks): what tuning can see
+  F held-out   the floor's held-out walks, model and survey from its tuning walks
+  F <- G       crosswise: F's held-out walks with the parameters learned on the OTHER floor's
+               tuning walks (F's own graph; F's survey for the WiFi rows)
+
+Rows (errors at the surveyed waypoints, metres):
+  dead reckoning      the same steps from the known start, no map (the peer every row beats)
+  known start         CRF, first waypoint given (left out of the errors); mean, p95
+  live                the same run's online (filtered) positions
+  unknown, no WiFi    CRF from a uniform start (all waypoints)
+  unknown + WiFi      CRF from a uniform start with the survey's fingerprints
+  WiFi alone          the survey's k-NN position of every scan against the straight-line truth
+  converged           share of waypoints where the unknown-start posterior reports converged
+                      (one mode holding >= 95 % of the mass: posefix.mapmatch.modes), the error
+                      there, and walks converged at their last step
+  2σ coverage         share of waypoints inside the reported 2σ ellipse (86 % if honest)
+  ms/step             CPU time of one process for the online step (one core)
+
+Positions are smoothed posterior means; the ellipse is the smoothed marginal's.
 """
 
 from __future__ import annotations
 
 import argparse
-import glob
 import os
 import sys
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-TARGETS = {"b": (2.0, 4.0), "c": (3.0, None), "d": (3.0, None)}
-TARGET_MS_PER_STEP = 2.0
-NAIVE_PDR = (4.4, 8.8)  # README: fixed 0.7 m stride, rotation-vector heading, no map
+REPO = Path(__file__).resolve().parents[1]
+FLOORS = {"site1/F1": "indoor-site1-F1", "site2/F2": "indoor-site2-F2"}
+TARGET_KNOWN = (2.0, 4.0)  # mean, p95 (m)
+TARGET_WIFI = 3.0  # unknown start with survey WiFi, mean (m)
+TARGET_COVER = (0.81, 0.91)  # 2σ coverage, 86 % ± 5
+TARGET_CONVERGED_COVER = 0.90
+TARGET_MS = 2.0
 
 
-def floor_dir() -> Path:
-    """The full floor when it is beside the repository, else the repository's 3-walk copy."""
-    repo = Path(__file__).resolve().parents[1]
+def data_root() -> tuple[Path, str]:
+    """The shared data set when present (both floors with walks), else the repository's data/."""
     env = os.environ.get("POSEFIX_SHARED_DATA")
-    full = Path(env) if env else repo.parent / "shared" / "data"
-    if (full / "indoor-site1-F1" / "walks").is_dir():
-        return full / "indoor-site1-F1"
-    print(f"note: no full floor at {full}; using the repository's data/indoor-site1-F1 (3 walks)", file=sys.stderr)
-    return repo / "data" / "indoor-site1-F1"
+    shared = Path(env) if env else REPO.parent / "shared" / "data"
+    if all(any((shared / d / "walks").glob("*.txt")) for d in FLOORS.values()):
+        return shared, "shared data set"
+    return REPO / "data", "repository data/ (no shared data set found)"
+
+
+@dataclass
+class Part:
+    """Per-waypoint results of one section's walks (lists of per-walk arrays)."""
+
+    err: dict = field(default_factory=lambda: {k: [] for k in ("a", "b", "live", "c", "d", "wifi")})
+    m2: dict = field(default_factory=lambda: {k: [] for k in ("b", "c", "d")})
+    conv: dict = field(default_factory=lambda: {k: [] for k in ("c", "d")})
+    conv_end: dict = field(default_factory=lambda: {k: [] for k in ("c", "d")})
+    ms: dict = field(default_factory=lambda: {k: [] for k in ("b", "c", "d")})
+    walks: list = field(default_factory=list)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="every third walk; learn only the heading bias")
+    ap.add_argument("--quick", action="store_true", help="at most 6 tuning and 6 held-out walks a floor; "
+                    "learn only the heading bias and step scale")
+    ap.add_argument("--no-unknown", action="store_true", help="skip the unknown-start rows (faster)")
     ap.add_argument("--figure", metavar="PNG", help="also draw one walk (floor, waypoints, DR, CRF, 2σ ellipses)")
-    ap.add_argument("--wifi-corr-s", type=float, metavar="S", default=None,
-                    help="correlation time of WiFi errors for the discount of f3/f4 (s; default the "
-                         "model's, 20; 0 = every scan independent, the behaviour before the discount)")
     ap.add_argument("--no-browser", action="store_true", help="skip the browser tracker's block (benchmarks.browser_tracker)")
     ap.add_argument("--suggest", action="store_true",
                     help="only time suggestions on the demo's 10 min drive (cache cleared vs repeated)")
@@ -81,130 +87,187 @@ def main(argv: list[str] | None = None) -> int:
     if args.suggest:
         return bench_suggestions()
 
-    from posefix.mapmatch import build_model, read_walk, track_walk, train_model
-    from posefix.mapmatch.evaluate import evaluate_track, summarise
-    from posefix.mapmatch.fingerprints import build_fingerprints
+    from posefix.mapmatch import read_walk, train_model
+    from posefix.mapmatch.api import build_model_report
     from posefix.mapmatch.model import model_bytes
 
-    floor = floor_dir()
-    files = sorted(glob.glob(str(floor / "walks" / "*.txt")))
-    if not files:
-        print(f"error: no walks under {floor}/walks ", file=sys.stderr)
-        return 1
-    if args.quick:
-        files = files[::3]
-    walks = [read_walk(f) for f in files]
-    t0 = time.perf_counter()
-    base = build_model(floor)
-    build_s = time.perf_counter() - t0
-    size_kib = len(model_bytes(base)) / 1024
-
-    folds = [list(range(0, len(walks), 2)), list(range(1, len(walks), 2))]
-    errs = {k: [] for k in ("a", "b", "b_online", "b_wifi", "c", "d", "wifi", "centroid")}
-    maha2 = {k: [] for k in ("b", "b_wifi", "d")}  # squared Mahalanobis distance of each waypoint's error
-    cover = {"d": [], "wifi": []}  # distance (m) from the truth to the nearest other-walk scan
-    start_sigma_c = []
-    ms = {k: [] for k in "bcd"}
-    reports = []
-    for i, fold in enumerate(folds):
-        other = [walks[j] for j in folds[1 - i]]
+    root, origin = data_root()
+    print(f"posefix mapmatch benchmark; walks from the {origin}: {root}")
+    floors = {}
+    for name, d in FLOORS.items():
+        files = sorted((root / d / "walks").glob("*.txt"))
+        tune, held = files[0::2], files[1::2]
+        if args.quick:
+            tune, held = tune[:6], held[:6]
+        t0 = time.perf_counter()
+        base, report = build_model_report(root / d)
+        build_s = time.perf_counter() - t0
+        print(f"{name}: {base.graph.n_vertices} vertices at {base.graph.cell_m} m, model "
+              f"{len(model_bytes(base)) / 1024:.1f} KiB, built in {build_s:.1f} s; {report.outline}")
+        print(f"  tuning walks ({len(tune)}): {' '.join(f.stem[-8:] for f in tune)}")
+        print(f"  held-out walks ({len(held)}): {' '.join(f.stem[-8:] for f in held)}")
+        tw = [read_walk(f) for f in tune]
         t1 = time.perf_counter()
-        model, rep = train_model(base, other, heading_bias=True, step_em=False, weights=not args.quick)
-        if args.wifi_corr_s is not None:
-            model = model.with_(sigmas=replace(model.sigmas, wifi_corr_s=args.wifi_corr_s))
-        reports.append((rep, time.perf_counter() - t1))
-        for j in fold:
-            w = walks[j]
-            start = tuple(w.waypoints[0, 1:3])
-            rb = track_walk(model, w, start_xy_m=start)
-            errs["a"].append(evaluate_track(w.waypoints, rb.t_ms, rb.dr_xy_m, skip_first=True).err_wp_m)
-            errs["b"].append(evaluate_track(w.waypoints, rb.t_ms, rb.p_xy_m, skip_first=True).err_wp_m)
-            errs["b_online"].append(evaluate_track(w.waypoints, rb.t_ms, rb.online_xy_m, skip_first=True).err_wp_m)
-            rc = track_walk(model, w, start_xy_m=None)
-            errs["c"].append(evaluate_track(w.waypoints, rc.t_ms, rc.p_xy_m).err_wp_m)
-            start_sigma_c.append(rc.sigma_major_m[0])
-            errs["centroid"].append(np.linalg.norm(w.waypoints[:, 1:3] - base.graph.p_xy_m.mean(axis=0), axis=1))
-            fp = build_fingerprints([x for k, x in enumerate(walks) if k != j])
-            rd = track_walk(model, w, start_xy_m=None, fingerprints=fp)
-            rbw = track_walk(model, w, start_xy_m=start, fingerprints=fp)
-            errs["b_wifi"].append(evaluate_track(w.waypoints, rbw.t_ms, rbw.p_xy_m, skip_first=True).err_wp_m)
-            errs["d"].append(evaluate_track(w.waypoints, rd.t_ms, rd.p_xy_m).err_wp_m)
-            for k, r, skip in (("b", rb, True), ("b_wifi", rbw, True), ("d", rd, False)):
-                maha2[k].append(mahalanobis2_at_waypoints(w.waypoints, r, skip_first=skip))
-            cover["d"].append(nearest_m(w.waypoints[:, 1:3], fp.p_xy_m))
-            e_w, c_w = wifi_alone(fp, w)
-            errs["wifi"].append(e_w)
-            cover["wifi"].append(c_w)
-            for k, r in (("b", rb), ("c", rc), ("d", rd)):
-                ms[k].append((r.time_per_step_s * 1000, r.offline_time_per_step_s * 1000, max(len(r.t_ms) - 1, 1)))
-            print(f"  walk {Path(w.path).stem[-8:]}: b {errs['b'][-1].mean() if errs['b'][-1].size else float('nan'):5.2f} m"
-                  f"  c {errs['c'][-1].mean():6.2f} m  d {errs['d'][-1].mean():6.2f} m", flush=True)
+        trained, rep = train_model(base, tw, weights=not args.quick)
+        print(f"  trained on its tuning walks in {time.perf_counter() - t1:.1f} s: {rep}")
+        floors[name] = (base, trained, tw, [read_walk(f) for f in held])
 
-    def ratio(v, t):
-        return f"{v:6.2f} ({v / t:4.2f}×)" if t else f"{v:6.2f}        "
-
-    labels = {"a": "(a) dead reckoning, known start", "b": "(b) CRF, known start",
-              "b_online": "(b') same, online (filtered, live)",
-              "b_wifi": "(b+w) (b) + WiFi: fusion check",
-              "c": "(c) CRF, unknown start", "d": "(d) CRF + WiFi (leave-one-out)",
-              "wifi": "WiFi alone, per scan (k-NN, l-o-o)",
-              "centroid": "floor centroid (no information)"}
-    print()
-    print(f"posefix mapmatch benchmark: {len(walks)} walks, indoor-site1-F1, {base.graph.n_vertices} vertices "
-          f"at {base.graph.cell_m} m; model {size_kib:.1f} KiB, built in {build_s:.2f} s")
-    for i, (rep, dt) in enumerate(reports):
-        print(f"  fold {i}: trained on {len(folds[1 - i])} walks in {dt:.1f} s: {rep}")
-    print()
-    hdr = (f"{'':34s} {'n':>4s}  {'mean m (÷target)':>17s}  {'p95 m (÷target)':>17s}  "
-           f"{'online ms/step (÷2.0)':>21s}  {'offline ms/step':>15s}")
-    print(hdr)
-    print("-" * len(hdr))
-    for k in ("a", "b", "b_online", "b_wifi", "c", "d", "wifi", "centroid"):
-        s = summarise(errs[k])
-        tm, tp = TARGETS.get(k[0] if k not in ("a", "centroid", "wifi", "b_wifi") else k, (None, None))
-        if k in ms:
-            n_all = sum(n for _, _, n in ms[k])
-            on = sum(a * n for a, _, n in ms[k]) / n_all
-            off = sum(b * n for _, b, n in ms[k]) / n_all
-            t_txt = f"{on:6.2f} ({on / TARGET_MS_PER_STEP:4.2f}×)"
-            o_txt = f"{off:6.2f}"
-        else:
-            t_txt = o_txt = ""
-        print(f"{labels[k]:34s} {s['n']:4d}  {ratio(s['mean_m'], tm):>17s}  {ratio(s['p95_m'], tp):>17s}  "
-              f"{t_txt:>21s}  {o_txt:>15s}")
-    print(f"{'README naive PDR (reference)':34s} {'':4s}  {NAIVE_PDR[0]:6.2f}{'':11s}  {NAIVE_PDR[1]:6.2f}")
-    sc = np.asarray(start_sigma_c)
-    print(f"(c) start left undetermined by the walk's shape: smoothed start marginal p(y_0 | walk) has a 1σ "
-          f"major semi-axis of median {np.median(sc):.1f} m; under 3 m in {np.sum(sc < 3.0)} of {sc.size} walks")
-    lo_d, hi_d = walk_bootstrap(errs["d"])
-    print(f"(d) mean with the {len(errs['d'])} walks resampled with replacement: 90 % interval "
-          f"{lo_d:.2f}-{hi_d:.2f} m (which walks are in the set moves the mean this much)")
-    honest = []
-    for k in ("b", "b_wifi", "d"):
-        m2 = np.concatenate(maha2[k])
-        honest.append(f"{k.replace('_wifi', '+w')} {100 * np.mean(m2 <= 4.0):.0f} % (median {np.median(m2):.2f})")
-    tau = model.sigmas.wifi_corr_s
-    print(f"ellipses, share of waypoints inside their 2σ ellipse (86 % if honest; median squared Mahalanobis "
-          f"distance, 1.39 if honest): " + ", ".join(honest)
-          + f"; WiFi discount τ = {tau:g} s" + (" (scans independent)" if tau == 0 else ""))
-    for k in ("d", "wifi"):
-        e, c = np.concatenate(errs[k]), np.concatenate(cover[k])
-        parts = []
-        for lo, hi in ((0.0, 3.0), (3.0, 12.0), (12.0, np.inf)):
-            sel = (c >= lo) & (c < hi)
-            if sel.any():
-                parts.append(f"{lo:g}-{hi:g} m: n {sel.sum()}, mean {e[sel].mean():.2f} m")
-        print(f"{labels[k].split(' (')[0]}, by distance from the truth to the nearest other-walk scan: " + "; ".join(parts))
+    cols: dict[str, Part] = {}
+    for name, (base, trained, tw, hw) in floors.items():
+        print(f"{name} tuning part:", flush=True)
+        cols[f"{name} tuning"] = run_part(trained, tw, None, tw, args, no_wifi_row=False)
+        print(f"{name} held-out part:", flush=True)
+        cols[f"{name} held-out"] = run_part(trained, hw, tw, None, args)
+    for name, (base, _, tw, hw) in floors.items():
+        other = next(n for n in floors if n != name)
+        cross = transfer(floors[other][1], base)
+        print(f"{name} held-out, parameters from {other}:", flush=True)
+        cols[f"{name} <- {other}"] = run_part(cross, hw, tw, None, args, no_wifi_row=False)
+    print_table(cols, args)
     if args.figure:
-        draw_figure(base, walks[0], args.figure)
+        name = next(iter(floors))
+        draw_figure(floors[name][1], floors[name][3][0], args.figure)
         print(f"figure -> {args.figure}")
-    print("\nTargets: (b) mean ≤ 2.0 m, p95 ≤ 4.0 m; (c)/(d) mean ≤ 3.0 m; ≤ 2 ms per step. Ratio > 1 misses the target.")
     if not args.no_browser:
         # The device path: the same tracker in the browser (benchmarks/browser_tracker.py, its own module).
         from benchmarks.browser_tracker import print_browser_block
 
-        print_browser_block(floor)
+        print_browser_block(root / FLOORS["site1/F1"])
     return 0
+
+
+def transfer(trained, base):
+    """The parameters learned on one floor (step model, heading bias, weights, sigmas, beam) on
+    another floor's graph."""
+    return trained.with_(graph=base.graph)
+
+
+def run_part(model, walks, survey, loo_survey, args, no_wifi_row: bool = True) -> Part:
+    """Track ``walks``; WiFi fingerprints from ``survey`` (all of it) or, for the tuning part,
+    from ``loo_survey`` minus the walk tracked. ``no_wifi_row``: also the unknown start without
+    WiFi (the slowest row; it does not depend on the learned parameters beyond the heading)."""
+    from posefix.mapmatch import track_walk
+    from posefix.mapmatch.evaluate import evaluate_track
+    from posefix.mapmatch.fingerprints import build_fingerprints
+
+    part = Part()
+    fp_all = build_fingerprints(survey) if survey else None
+    for w in walks:
+        if w.waypoints.shape[0] < 2:
+            continue
+        part.walks.append(Path(w.path).stem[-8:])
+        start = tuple(w.waypoints[0, 1:3])
+        rb = track_walk(model, w, start_xy_m=start)
+        part.err["a"].append(evaluate_track(w.waypoints, rb.t_ms, rb.dr_xy_m, skip_first=True).err_wp_m)
+        part.err["b"].append(evaluate_track(w.waypoints, rb.t_ms, rb.p_xy_m, skip_first=True).err_wp_m)
+        part.err["live"].append(evaluate_track(w.waypoints, rb.t_ms, rb.online_xy_m, skip_first=True).err_wp_m)
+        part.m2["b"].append(mahalanobis2_at_waypoints(w.waypoints, rb, skip_first=True))
+        part.ms["b"].append((rb.time_per_step_s * 1000, len(rb.t_ms) - 1))
+        if args.no_unknown:
+            continue
+        fp = fp_all if fp_all is not None else build_fingerprints([x for x in loo_survey if x is not w])
+        for key, f in ((("c", None),) if no_wifi_row else ()) + (("d", fp),):
+            r = track_walk(model, w, start_xy_m=None, fingerprints=f)
+            part.err[key].append(evaluate_track(w.waypoints, r.t_ms, r.p_xy_m).err_wp_m)
+            part.m2[key].append(mahalanobis2_at_waypoints(w.waypoints, r))
+            part.conv[key].append(r.converged[nearest_rows(r.t_ms, w.waypoints[:, 0])])
+            part.conv_end[key].append(bool(r.converged[-1]))
+            part.ms[key].append((r.time_per_step_s * 1000, len(r.t_ms) - 1))
+        part.err["wifi"].append(wifi_alone(fp, w)[0])
+        c_txt = f"unknown {part.err['c'][-1].mean():6.2f} m, " if no_wifi_row else ""
+        print(f"    {part.walks[-1]}: known {part.err['b'][-1].mean():5.2f} m, {c_txt}"
+              f"+WiFi {part.err['d'][-1].mean():6.2f} m (converged at the end: {part.conv_end['d'][-1]})", flush=True)
+    return part
+
+
+def nearest_rows(t_ms: np.ndarray, t_query: np.ndarray) -> np.ndarray:
+    """Index of the track row nearest in time to each query time."""
+    t = np.asarray(t_ms, dtype=float)
+    i = np.clip(np.searchsorted(t, t_query), 1, max(t.size - 1, 1))
+    if t.size == 1:
+        return np.zeros(len(t_query), dtype=int)
+    return np.where(np.abs(t[i - 1] - t_query) <= np.abs(t[i] - t_query), i - 1, i)
+
+
+def _cat(xs) -> np.ndarray:
+    return np.concatenate(xs) if xs else np.zeros(0)
+
+
+def _fmt(v: float, unit: str = "") -> str:
+    return "-" if v is None or not np.isfinite(v) else f"{v:.2f}{unit}"
+
+
+def summary_rows(p: Part) -> list[tuple[str, str]]:
+    """(label, value) rows of one section."""
+    def mp(k):
+        e = _cat(p.err[k])
+        return f"{_fmt(e.mean())} / {_fmt(np.percentile(e, 95))}" if e.size else "-"
+
+    def cover(k, sel=None):
+        m2 = _cat(p.m2[k])
+        if sel is not None:
+            m2 = m2[sel]
+        return f"{100 * np.mean(m2 <= 4.0):.0f} % (n {m2.size})" if m2.size else "-"
+
+    def ms(k):
+        n = sum(x for _, x in p.ms[k])
+        return _fmt(sum(a * x for a, x in p.ms[k]) / n) if n else "-"
+
+    rows = [("walks / waypoints scored", f"{len(p.walks)} / {_cat(p.err['b']).size}"),
+            ("dead reckoning, mean / p95", mp("a")), ("known start, mean / p95", mp("b")),
+            ("known start, live, mean / p95", mp("live")),
+            ("unknown, no WiFi, mean / p95", mp("c")), ("unknown + WiFi, mean / p95", mp("d")),
+            ("WiFi alone per scan, mean / p95", mp("wifi"))]
+    for k, lab in (("c", "no WiFi"), ("d", "+ WiFi")):
+        conv = _cat(p.conv[k]).astype(bool)
+        if conv.size:
+            e = _cat(p.err[k])[conv]
+            rows.append((f"converged {lab}: waypoints, err, walks",
+                         f"{100 * conv.mean():.0f} %, {_fmt(e.mean() if e.size else np.nan)} m, "
+                         f"{sum(p.conv_end[k])}/{len(p.conv_end[k])}"))
+    rows.append(("2σ coverage known start", cover("b")))
+    for k, lab in (("d", "+ WiFi"), ("c", "no WiFi")):
+        conv = _cat(p.conv[k]).astype(bool)
+        if conv.size:
+            rows.append((f"2σ coverage unknown {lab}, all", cover(k)))
+            rows.append((f"2σ coverage unknown {lab}, converged", cover(k, conv) if conv.any() else "-"))
+    rows.append(("ms/step online known / unknown / +WiFi", " / ".join(ms(k) for k in "bcd")))
+    return rows
+
+
+def print_table(cols: dict[str, Part], args) -> None:
+    names = list(cols)
+    table = [summary_rows(cols[n]) for n in names]
+    labels = [lab for lab, _ in max(table, key=len)]
+    w0 = max(len(x) for x in labels) + 2
+    widths = [max(len(n), *(len(v) for _, v in t)) + 2 for n, t in zip(names, table)]
+    print()
+    print(" " * w0 + "".join(n.rjust(w) for n, w in zip(names, widths)))
+    print("-" * (w0 + sum(widths)))
+    for lab in labels:
+        vals = [dict(t).get(lab, "") for t in table]
+        print(lab.ljust(w0) + "".join(v.rjust(w) for v, w in zip(vals, widths)))
+    print()
+    print("Targets on held-out walks and floors (ratio = ours ÷ target; > 1 misses):")
+    for n in names:
+        if n.endswith("tuning"):
+            continue
+        p = cols[n]
+        b, a = _cat(p.err["b"]), _cat(p.err["a"])
+        line = (f"  {n}: known start mean {b.mean():.2f} m ({b.mean() / TARGET_KNOWN[0]:.2f}x), "
+                f"p95 {np.percentile(b, 95):.2f} m ({np.percentile(b, 95) / TARGET_KNOWN[1]:.2f}x); "
+                f"dead reckoning {a.mean():.2f} m (known start ÷ it: {b.mean() / a.mean():.2f})")
+        d = _cat(p.err["d"])
+        if d.size:
+            line += f"; unknown + WiFi {d.mean():.2f} m ({d.mean() / TARGET_WIFI:.2f}x)"
+        m2 = np.concatenate([_cat(p.m2["b"]), _cat(p.m2["d"])])
+        line += f"; 2σ coverage (known + unknown with WiFi) {100 * np.mean(m2 <= 4.0):.0f} % (86 ± 5)"
+        conv = _cat(p.conv["d"]).astype(bool)
+        if conv.any():
+            line += f", converged {100 * np.mean(_cat(p.m2['d'])[conv] <= 4.0):.0f} % (≥ 90)"
+        ms = [a for k in "bcd" for a, _ in p.ms[k]]
+        line += f"; worst walk's ms/step {max(ms):.2f} ({max(ms) / TARGET_MS:.2f}x)"
+        print(line)
 
 
 def bench_suggestions(repeats: int = 3) -> int:

@@ -217,6 +217,9 @@ class TestWalkTracking:
         # Matched to the corridors, the track ends within a few metres of the surveyed end.
         assert err["max_m"] < 5.0 and err["mean_m"] < err["dr_mean_m"]
         assert body["steps"][-1]["lon"] == pytest.approx(fp["georef"][0] + body["steps"][-1]["x_m"] * fp["georef"][2], abs=1e-6)
+        # From the given start the posterior stays on one place: converged, one mode, at every step.
+        assert all(s["converged"] and s["n_modes"] == 1 and s["mode_spread_m"] == 0.0 for s in body["steps"])
+        assert body["walk"]["converged_at_end"] and body["walk"]["converged_share"] == 1.0
 
     def test_unknown_and_explicit_start(self, app, client, users):
         fp = ready_floor(app, client, users)
@@ -224,6 +227,11 @@ class TestWalkTracking:
             r = client.post(f"/api/v1/floorplans/{fp['id']}/walks", files={"file": (WALK.name, WALK.read_bytes())},
                             data={"start": start}, headers=users["client"])
             assert r.status_code == ok, r.text
+            if start == "unknown":
+                # Motion only, unknown start: the walk's shape fits several corridors, and the answer says so.
+                last = r.json()["steps"][-1]
+                assert not r.json()["walk"]["converged_at_end"] and not last["converged"]
+                assert last["n_modes"] >= 2 and last["mode_spread_m"] > 10.0
         assert r.json()["error"] == "bad_start"
 
 

@@ -58,7 +58,7 @@ def test_cli_build_track_evaluate(tmp_path):
                          "--start", "81.317215,93.31349", "--output", str(tmp_path / "t.csv")])
     assert out.exit_code == 0, out.output
     lines = (tmp_path / "t.csv").read_text().splitlines()
-    assert lines[0] == "t,x,y,lat,lon,sigma_major_m,sigma_minor_m,angle_deg"
+    assert lines[0] == "t,x,y,lat,lon,sigma_major_m,sigma_minor_m,angle_deg,converged,n_modes,mode_spread_m"
     lat, lon = (float(v) for v in lines[1].split(",")[3:5])
     assert 30.29 < lat < 30.30 and 120.07 < lon < 120.08  # Hangzhou, from the geo-reference
     out = r.invoke(app, ["mapmatch", "evaluate", str(WALK), str(tmp_path / "t.csv"), "--skip-first"])

@@ -141,7 +141,7 @@ def train(
 def track(
     walk: Path = typer.Argument(..., help="Walk file (competition path format); waypoints are not read."),
     model_path: Path = typer.Option(..., "--model", help="Model file."),
-    output: Path = typer.Option(..., "--output", "-o", help="TRACK.csv: t (unix ms), x, y (m), lat, lon, sigma_major_m, sigma_minor_m, angle_deg."),
+    output: Path = typer.Option(..., "--output", "-o", help="TRACK.csv: t (unix ms), x, y (m), lat, lon, sigma_major_m, sigma_minor_m, angle_deg, converged, n_modes, mode_spread_m."),
     fingerprints: Optional[Path] = typer.Option(None, "--fingerprints", help="Fingerprint file (adds f3/f4)."),
     start: Optional[str] = typer.Option(None, "--start", help="Known start 'X,Y' in metres (floor frame); default: unknown (uniform)."),
     heading: str = typer.Option("rotation_vector", "--heading", help="Heading source: rotation_vector or gyro_mag."),
@@ -177,6 +177,13 @@ def track(
             write_track_csv(tmp, res, model.graph.georef)
         typer.echo(f"track: {res.t_ms.size} rows, {1000 * res.time_per_step_s:.2f} ms/step, "
                    f"median 1σ {float(np.median(res.sigma_major_m)):.2f} m -> {output}")
+        last = res.modes[-1]
+        if last.converged:
+            typer.echo(f"converged: yes (one place holds {100 * last.mass[0]:.0f} %; converged on "
+                       f"{100 * float(np.mean(res.converged)):.0f} % of the rows)")
+        else:
+            typer.echo(f"converged: no - the walk fits {last.n} places up to {last.spread_m:.1f} m apart "
+                       f"(the likeliest holds {100 * last.mass[0]:.0f} %); the rows are the posterior mean, not a fix")
 
 
 @mm.command("evaluate")

@@ -37,7 +37,8 @@ __all__ = [
     "suggest_for_run", "Suggestions", "track_walk", "track_walk_file", "train_model", "write_track_csv",
 ]
 
-TRACK_COLUMNS = ["t", "x", "y", "lat", "lon", "sigma_major_m", "sigma_minor_m", "angle_deg"]
+TRACK_COLUMNS = ["t", "x", "y", "lat", "lon", "sigma_major_m", "sigma_minor_m", "angle_deg", "converged", "n_modes",
+                 "mode_spread_m"]
 
 
 def build_model(floor_dir: str | Path, cell_m: float = 0.8, reach_m: float = 1.7, raster_m: float = 0.1,
@@ -173,7 +174,9 @@ def track_walk_file(model: Model, walk_path: str | Path, start_xy_m=None, finger
 
 def write_track_csv(path: str | Path, res: TrackResult, georef: GeoRef | None) -> None:
     """TRACK.csv: one row per step (and the start): t (unix ms), x, y (m), lat, lon (deg,
-    empty without a geo-reference), sigma_major_m, sigma_minor_m (1σ), angle_deg (CCW from x)."""
+    empty without a geo-reference), sigma_major_m, sigma_minor_m (1σ), angle_deg (CCW from x),
+    converged (1: the posterior converged on one place, the ellipse is a fix; 0: it did not),
+    n_modes (places holding ≥ 1 % each), mode_spread_m (the farthest from the likeliest)."""
     ll = georef.to_lonlat(res.p_xy_m) if georef is not None else None
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
@@ -182,7 +185,8 @@ def write_track_csv(path: str | Path, res: TrackResult, georef: GeoRef | None) -
             lat = f"{ll[i, 1]:.8f}" if ll is not None else ""
             lon = f"{ll[i, 0]:.8f}" if ll is not None else ""
             w.writerow([int(res.t_ms[i]), f"{res.p_xy_m[i, 0]:.3f}", f"{res.p_xy_m[i, 1]:.3f}", lat, lon,
-                        f"{res.sigma_major_m[i]:.3f}", f"{res.sigma_minor_m[i]:.3f}", f"{res.angle_deg[i]:.1f}"])
+                        f"{res.sigma_major_m[i]:.3f}", f"{res.sigma_minor_m[i]:.3f}", f"{res.angle_deg[i]:.1f}",
+                        int(res.modes[i].converged), res.modes[i].n, f"{res.modes[i].spread_m:.1f}"])
 
 
 def read_track_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

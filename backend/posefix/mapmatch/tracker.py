@@ -25,12 +25,13 @@ same discounted evidence.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from posefix.mapmatch.features import FeatureSigmas, evidence_share, f_gaussian_position, f_robust_position, f_step
+from posefix.mapmatch.modes import posterior_modes
 from posefix.mapmatch.viterbi import ForwardFilter, GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
 
 __all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "smooth", "start_log_prior"]
@@ -72,7 +73,9 @@ class TrackResult:
     ``sigma_major_m``/``sigma_minor_m``/``angle_deg`` (T+1,) of each step's column, and
     ``dr_xy_m`` (T+1, 2) the plain dead-reckoning track from the same start.
     ``time_per_step_s``: CPU time of the online step; ``offline_time_per_step_s`` with the
-    offline back-track and smoothing included."""
+    offline back-track and smoothing included. ``modes`` (T+1,): each row's
+    :class:`posefix.mapmatch.modes.Modes` (how many places the walker may be, how far
+    apart, and whether the posterior has converged on one)."""
 
     t_ms: np.ndarray
     p_xy_m: np.ndarray
@@ -84,6 +87,21 @@ class TrackResult:
     dr_xy_m: np.ndarray
     time_per_step_s: float
     offline_time_per_step_s: float
+    modes: tuple = ()
+    step_correction: complex = 1.0 + 0j  # the walk's own step scale and heading, |a|·e^{i·arg a} (calibrate.py)
+
+    @property
+    def converged(self) -> np.ndarray:
+        """(T+1,) bool: the row's posterior has converged on one place (its ellipse is a fix)."""
+        return np.array([m.converged for m in self.modes], dtype=bool)
+
+    @property
+    def n_modes(self) -> np.ndarray:
+        return np.array([m.n for m in self.modes], dtype=np.int64)
+
+    @property
+    def mode_spread_m(self) -> np.ndarray:
+        return np.array([m.spread_m for m in self.modes])
 
 
 class Tracker:
@@ -247,46 +265,29 @@ class Tracker:
         return self.filter.best_path()
 
 
-def smooth(tracker: Tracker) -> tuple[np.ndarray, list[GaussianSummary]]:
+def smooth(tracker: Tracker, with_modes: bool = False):
     """Offline smoothing of everything a tracker has seen: forward-backward marginals
     p(y_t | all steps) over the same scores, returned as posterior means (T+1, 2) — the
-    minimum mean-squared-error positions — and their Gaussian summaries."""
+    minimum mean-squared-error positions — and their Gaussian summaries (and, with
+    ``with_modes``, each marginal's :class:`posefix.mapmatch.modes.Modes` third)."""
     g = tracker.graph
     fb = forward_backward(g, tracker.log_prior, np.asarray(tracker.trans_rows).reshape(-1, g.offsets.shape[0]),
                           tracker.state_rows, beam=tracker.model.beam)
     floor = g.cell_m / np.sqrt(12.0)
-    sums = []
+    sums, modes = [], []
     for row in fb.gamma:
         with np.errstate(divide="ignore"):
             sums.append(gaussian_summary(tracker.p_xy_m, np.log(row), min_sigma_m=floor))
-    return np.array([s.mean_xy_m for s in sums]), sums
+        if with_modes:
+            modes.append(posterior_modes(tracker.p_xy_m, row))
+    means = np.array([s.mean_xy_m for s in sums])
+    return (means, sums, modes) if with_modes else (means, sums)
 
 
-def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, fingerprints=None,
-               heading: str = "rotation_vector", estimate: str = "mean",
-               on_step: Callable[[int, int], None] | None = None,
-               wifi_corr_s: float | None = None) -> TrackResult:
-    """Track a parsed :class:`posefix.mapmatch.sensors.Walk` (its waypoints are not read).
-
-    ``fingerprints``: an optional :class:`posefix.mapmatch.fingerprints.FingerprintMap`
-    giving f3 (and f4) observations, each attached to the step nearest in time and
-    discounted by the time since the previous one (``wifi_corr_s``: τ in seconds, None =
-    the model's, 0 = scans independent; see :class:`Tracker`).
-    ``estimate``: ``"mean"`` (default) reports the smoothed posterior mean and its
-    ellipse (:func:`smooth`); ``"viterbi"`` the most likely path's vertices with the
-    online columns' ellipses. ``vertex`` is the Viterbi path in both cases.
-    """
-    import time
-
-    from posefix.mapmatch.sensors import steps_from_walk
-
-    if estimate not in ("mean", "viterbi"):
-        raise ValueError(f"estimate must be 'mean' or 'viterbi', got {estimate!r}")
-    steps = steps_from_walk(walk, heading=heading)
-    vec = steps.vectors_m(model.step_model)
-    t0 = int(walk.acc[0, 0])
-    # Observations per step: (observation, the time it was measured) — the time for the
-    # WiFi discount. Two scans nearest the same step: the later is kept.
+def _walk_observations(model, walk, steps, start_xy_m, fingerprints) -> tuple[dict, dict, tuple | None, int | None]:
+    """WiFi fixes and RSSI peaks of a walk attached to its steps: ``{step: (observation, t_ms
+    measured)}`` each (two nearest the same step: the later is kept), and the start prior's
+    scan (a scan before the first step, unknown start only) with its time."""
     wifi_at: dict[int, tuple] = {}
     peak_at: dict[int, tuple] = {}
     start_wifi, start_wifi_t = None, None
@@ -299,10 +300,63 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
             wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = ((mean, cov, eps), int(t_ms))
         for t_ms, xy, sig in fingerprints.peaks_in_walk(walk):
             peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = ((xy, sig), int(t_ms))
+    return wifi_at, peak_at, start_wifi, start_wifi_t
+
+
+def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, fingerprints=None,
+               heading: str = "rotation_vector", estimate: str = "mean",
+               on_step: Callable[[int, int], None] | None = None,
+               wifi_corr_s: float | None = None, self_calibrate: bool = True, em_iterations: int = 2,
+               heading_only: bool = True) -> TrackResult:
+    """Track a parsed :class:`posefix.mapmatch.sensors.Walk` (its waypoints are not read).
+
+    ``fingerprints``: an optional :class:`posefix.mapmatch.fingerprints.FingerprintMap`
+    giving f3 (and f4) observations, each attached to the step nearest in time and
+    discounted by the time since the previous one (``wifi_corr_s``: τ in seconds, None =
+    the model's, 0 = scans independent; see :class:`Tracker`).
+    ``estimate``: ``"mean"`` (default) reports the smoothed posterior mean and its
+    ellipse (:func:`smooth`); ``"viterbi"`` the most likely path's vertices with the
+    online columns' ellipses. ``vertex`` is the Viterbi path in both cases.
+    ``self_calibrate`` (with ``"mean"``): EM inside the walk (:mod:`posefix.mapmatch.calibrate`):
+    the walk's own step-length scale and heading offset from its converged stretches,
+    ``em_iterations`` re-runs; the result's ``step_correction`` is the a found (1 = none).
+    The live positions and the online time are the first pass's (a live session cannot
+    know the whole walk).
+    """
+    from posefix.mapmatch.calibrate import apply_step_correction, estimate_step_correction
+    from posefix.mapmatch.sensors import steps_from_walk
+
+    if estimate not in ("mean", "viterbi"):
+        raise ValueError(f"estimate must be 'mean' or 'viterbi', got {estimate!r}")
+    steps = steps_from_walk(walk, heading=heading)
+    vec = steps.vectors_m(model.step_model)
+    obs = _walk_observations(model, walk, steps, start_xy_m, fingerprints)
+    first = _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s)
+    res, a, extra_s = first, 1.0 + 0j, 0.0
+    if self_calibrate and estimate == "mean" and len(steps) >= 8:
+        for _ in range(em_iterations):
+            a_new = estimate_step_correction(vec, res.p_xy_m, res.converged, model.graph.cell_m, model.sigmas.len_m)
+            if abs(a_new - a) < 0.005:
+                break
+            a = a_new / abs(a_new) if heading_only else a_new
+            res = _track_pass(model, walk, steps, apply_step_correction(vec, a), obs, start_xy_m, estimate, None,
+                              wifi_corr_s)
+            extra_s += res.offline_time_per_step_s
+    return replace(res, online_xy_m=first.online_xy_m, dr_xy_m=first.dr_xy_m, time_per_step_s=first.time_per_step_s,
+                   offline_time_per_step_s=first.offline_time_per_step_s + extra_s, step_correction=a)
+
+
+def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s) -> TrackResult:
+    """One run of the tracker over a walk's step vectors ``vec`` (see :func:`track_walk`)."""
+    import time
+
+    wifi_at, peak_at, start_wifi, start_wifi_t = obs
+    t0 = int(walk.acc[0, 0])
     tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0, start_wifi=start_wifi, wifi_corr_s=wifi_corr_s,
                  start_wifi_t_ms=start_wifi_t)
     pts = [gaussian_summary(tr.p_xy_m, tr.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))]
     online = [pts[0].mean_xy_m]
+    cols = [np.exp(tr.column())] if estimate == "viterbi" else None
     tic = time.process_time()  # CPU time of this process: "one core", whatever else runs
     for i in range(len(steps)):
         wifi, wifi_t = wifi_at.get(i, (None, None))
@@ -310,13 +364,17 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
         tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi, peak=peak, wifi_t_ms=wifi_t, peak_t_ms=peak_t)
         pts.append(tp.summary)
         online.append(tp.summary.mean_xy_m)
+        if cols is not None:
+            cols.append(np.exp(tr.column()))
         if on_step is not None:
             on_step(i + 1, len(steps))
     path = tr.best_path()
     online_s = time.process_time() - tic
     p_out = tr.p_xy_m[path]
     if estimate == "mean" and len(steps):
-        p_out, pts = smooth(tr)
+        p_out, pts, modes = smooth(tr, with_modes=True)
+    if cols is not None or not len(steps):
+        modes = [posterior_modes(tr.p_xy_m, c) for c in (cols or [np.exp(tr.column())])]
     total_s = time.process_time() - tic
     start = np.zeros(2) if start_xy_m is None else np.asarray(start_xy_m, dtype=float)
     dr = start + np.vstack([np.zeros((1, 2)), np.cumsum(vec, axis=0)])
@@ -332,4 +390,5 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
         dr_xy_m=dr,
         time_per_step_s=online_s / n,
         offline_time_per_step_s=total_s / n,
+        modes=tuple(modes),
     )

@@ -379,6 +379,8 @@ def walk_geojson(fp: FloorPlan, model: mapmatch.Model, walk: mapmatch.Walk, res:
             "dr_x_m": _r(res.dr_xy_m[i, 0]), "dr_y_m": _r(res.dr_xy_m[i, 1]),
             "sigma_major_m": _r(res.sigma_major_m[i]), "sigma_minor_m": _r(res.sigma_minor_m[i]),
             "angle_deg": _r(res.angle_deg[i], 1),
+            "converged": bool(res.modes[i].converged), "n_modes": int(res.modes[i].n),
+            "mode_spread_m": _r(res.modes[i].spread_m),
         }
         if ll is not None:
             row["lon"], row["lat"] = round(float(ll[i, 0]), 8), round(float(ll[i, 1]), 8)
@@ -416,5 +418,6 @@ def walk_geojson(fp: FloorPlan, model: mapmatch.Model, walk: mapmatch.Walk, res:
         "steps": steps,
         "errors": errors,
         "walk": {"file": filename, "n_steps": int(res.t_ms.size - 1), "start": start_mode,
-                 "track_ms": _r(track_s * 1000, 1), "ms_per_step": _r(res.time_per_step_s * 1000, 3)},
+                 "track_ms": _r(track_s * 1000, 1), "ms_per_step": _r(res.time_per_step_s * 1000, 3),
+                 "converged_share": _r(float(np.mean(res.converged))), "converged_at_end": bool(res.converged[-1])},
     }

@@ -18,6 +18,11 @@ export interface WalkStep {
   sigma_major_m: number;
   sigma_minor_m: number;
   angle_deg: number;
+  /** The posterior has converged on one place (one mode holds ≥ 95 %): the ellipse is a fix (server tracks). */
+  converged?: boolean;
+  /** Places the walker may be (modes holding ≥ 1 % each) and the farthest one's distance from the main one. */
+  n_modes?: number;
+  mode_spread_m?: number;
 }
 
 export interface WaypointError {
@@ -33,7 +38,7 @@ export interface WaypointError {
 export interface WalkTrack {
   steps: WalkStep[];
   errors: { n: number; mean_m: number | null; median_m: number | null; p95_m: number | null; max_m: number | null; dr_mean_m?: number; skip_first: boolean; waypoints: WaypointError[] };
-  walk: { file: string; n_steps: number; start: string; track_ms: number; ms_per_step: number };
+  walk: { file: string; n_steps: number; start: string; track_ms: number; ms_per_step: number; converged_share?: number; converged_at_end?: boolean };
 }
 export type JobView = Schemas["JobPublic"];
 

@@ -9,7 +9,7 @@
 import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/context";
 import { clear, fmtTime, h } from "../ui/dom";
-import { type FloorPlan, type WalkTrack, jobResult, mapsApi } from "./api";
+import { type FloorPlan, type WalkStep, type WalkTrack, jobResult, mapsApi } from "./api";
 import { LiveSession } from "../tracker/live";
 import { WalkFormatError, parseWalk } from "../tracker/sensors";
 import { type Mode, trackWalk } from "../tracker/tracker";
@@ -245,7 +245,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     scrub.value = String(step);
     const s = track.steps[step];
     const reached = reachedWaypoints(track, step).filter((w) => !w.given_start);
-    stepLabel.textContent = `step ${step} / ${track.steps.length - 1} · 2σ ${fmtM(2 * s.sigma_major_m)}${reached.length ? ` · last waypoint error ${fmtM(reached[reached.length - 1].error_m)}` : ""}`;
+    stepLabel.textContent = `step ${step} / ${track.steps.length - 1} · ${placeText(s)}${reached.length ? ` · last waypoint error ${fmtM(reached[reached.length - 1].error_m)}` : ""}`;
     canvas.dataset.step = String(step);
     canvas.dataset.waypointsReached = String(reached.length);
     draw();
@@ -275,6 +275,13 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     setStep(Number(scrub.value));
   });
 
+  /** Where the walker is, honestly: a 2σ ellipse when the posterior converged, else how many places and how far apart. */
+  function placeText(s: WalkStep): string {
+    if (s.converged === undefined) return `2σ ${fmtM(2 * s.sigma_major_m)}`;
+    if (s.converged) return `converged · 2σ ${fmtM(2 * s.sigma_major_m)}`;
+    return (s.n_modes ?? 1) > 1 ? `not converged: ${s.n_modes} places up to ${fmtM(s.mode_spread_m ?? 0)} apart` : `not converged · 2σ ${fmtM(2 * s.sigma_major_m)}`;
+  }
+
   function showTrack(t: WalkTrack) {
     track = t;
     stop();
@@ -285,6 +292,9 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     const e = t.errors;
     summary.replaceChildren(
       h("p", {}, `${t.walk.file}: ${t.walk.n_steps} steps, tracked in ${t.walk.track_ms.toFixed(0)} ms (${t.walk.ms_per_step.toFixed(2)} ms per step).`),
+      ...(t.walk.converged_at_end === undefined ? [] : [h("p", { "data-testid": "walk-converged" }, t.walk.converged_at_end
+        ? `Converged: the walk is placed (${Math.round(100 * (t.walk.converged_share ?? 0))} % of its steps on one place).`
+        : `Not converged: the walk fits ${t.steps[t.steps.length - 1].n_modes} places up to ${fmtM(t.steps[t.steps.length - 1].mode_spread_m ?? 0)} apart; the track shown is the most likely, not a fix.`)]),
       e.n
         ? h("p", { "data-testid": "error-mean" }, `Error at ${e.n} waypoint${e.n === 1 ? "" : "s"}: mean ${fmtM(e.mean_m)}, max ${fmtM(e.max_m)} (dead reckoning: mean ${fmtM(e.dr_mean_m)}).`)
         : h("p", { "data-testid": "error-mean" }, "This walk has no surveyed waypoints to measure the error against."),
