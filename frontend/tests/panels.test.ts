@@ -3,7 +3,7 @@ import { loadDoc, perform, setPreview } from "../src/actions/editor";
 import { actionMoveKeyframe } from "../src/actions/edits";
 import { driftFrom } from "../src/api/convert";
 import { currentDrift, currentEdits, editorNew } from "../src/state/editor";
-import { formatRunTime, statusBar, toolbarState } from "../src/ui/editor/panels";
+import { driftText, formatRunTime, statusBar, toolbarState } from "../src/ui/editor/panels";
 import { eastOf, straightDoc } from "./fixtures";
 
 describe("status bar and toolbar", () => {
@@ -26,7 +26,13 @@ describe("status bar and toolbar", () => {
     expect(currentDrift(s)?.offset_m).toBeNull();
     s = perform(s, actionMoveKeyframe(4, eastOf(origin, 40, 5)));
     s = setPreview(s, currentEdits(s), doc.keyframes.map((k) => k.lonlat), 0.01, driftFrom({ offset_enu_m: [6, 8, 0], spread_m: 1, detected: true, n_edits: 1, max_bias_m: 10 }));
-    expect(currentDrift(s)).toEqual({ offset_m: 10, spread_m: 1, max_bias_m: 10, detected: true, n_edits: 1 });
+    expect(currentDrift(s)).toEqual({ offset_m: 10, spread_m: 1, max_bias_m: 10, detected: true, n_edits: 1, model: null, cv_rmse_m: null });
+  });
+  it("names the model the edits chose and its cross-validated RMSE", () => {
+    const drift = driftFrom({ offset_enu_m: [3, 4, null], spread_m: 1, detected: true, n_edits: 9,
+      calibration: { model: "relative", cv_rmse_m: 1.234, predicted_rmse_m: 0.8 } });
+    expect(drift?.model).toBe("relative");
+    expect(driftText(drift!)).toBe("GNSS offset 5.0 m (spread 1.0 m) from 9 edits. Model: relative, cross-validated RMSE 1.23 m at held-out edits.");
   });
   it("formats run times relative to the start, with UTC for Unix times", () => {
     expect(formatRunTime(12.5, 2.5)).toBe("10.00 s into the run");

@@ -197,11 +197,26 @@ def _print_correction_summary(run, edits, result, output: Path, elapsed_s: float
         if off.size >= 2 and np.all(np.isfinite(off[:2])):
             sp = f", spread {float(spread):.2f} m" if spread is not None and np.isfinite(spread) else ""
             typer.echo(f"drift implied by the edits: east {off[0]:+.2f} m, north {off[1]:+.2f} m{sp}")
+    calib = getattr(drift, "calibration", None)
+    if calib is not None:
+        typer.echo(_calibration_line(calib))
     if getattr(drift, "loc_sigma_h_m", None) is not None:
         typer.echo("the raw GNSS jumps onto urban-canyon levels the pose bridged: levels taken out of the "
                    "location term (drift.gnss_levels)")
     for flag in getattr(result, "flags", []) or []:
         typer.echo(f"flagged: keyframe {flag.index}: {flag.reason}: {flag.message}")
+
+
+def _calibration_line(calib) -> str:
+    """The model the run's edits chose and how well it predicts edits it did not see."""
+    import math
+
+    if calib.model == "prior":
+        return (f"model: prior ({calib.n_edits} edit(s): too few to hold one out; the run stays as reported "
+                "away from the edits)")
+    scores = ", ".join(f"{k} {v:.2f} m" for k, v in calib.cv_rmse_by_model.items() if math.isfinite(v))
+    return (f"model: {calib.model} (chosen by held-out edits; cross-validated RMSE at the edits: {scores}); "
+            f"predicted RMSE of the run {calib.predicted_rmse_m:.2f} m")
 
 
 # --------------------------------------------------------------------------- evaluate

@@ -72,8 +72,13 @@ class GravityConfig:
 class DriftConfig:
     enabled: bool = True
     bias_sigma_m: float = 5.0
-    bias_tau_s: float = 300.0
+    bias_tau_s: float = 60.0
     min_edits_for_estimate: int = 3
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    model: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -91,6 +96,7 @@ class SolverConfig:
 _CHOICES = {
     ("location", "loss"): ("cauchy", "huber", "soft_l1", "none"),
     ("propagation", "mode"): ("distance", "time"),
+    ("calibration", "model"): ("auto", "gnss", "plain", "relative"),
     ("solver", "method"): ("banded", "scipy"),
     ("rules", "lock_direction"): ("forward", "both"),
     ("rules", "order_rule"): ("refuse", "flag"),
@@ -115,6 +121,7 @@ class CorrectionConfig:
     relative: RelativeConfig = field(default_factory=RelativeConfig)
     gravity: GravityConfig = field(default_factory=GravityConfig)
     drift: DriftConfig = field(default_factory=DriftConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     propagation: PropagationConfig = field(default_factory=PropagationConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     rules: EditRules = field(default_factory=EditRules)

@@ -23,7 +23,7 @@ LOCAL_EDGE_M = 0.01  # ... and more (x3 each time) while the keyframes next to t
 
 
 def solve_window(terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: SolverResult, solver_cfg,
-                 lin: Linearisation | None = None):
+                 lin: Linearisation | None = None, span: tuple[int, int] | None = None):
     """Re-optimise only around the keyframes whose terms changed; None if that is most of the run.
 
     The window a..b (changed keyframes plus ``LOCAL_MARGIN``) is solved with a held
@@ -54,7 +54,9 @@ def solve_window(terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: Solve
     while True:
         a = max(int(hit[0]) - margin, 0)
         b = min(int(hit[-1]) + margin, k - 1)
-        if b - a + 1 > 0.5 * k:
+        if span is not None:  # held ends no closer than these keyframes (an edit held out: its neighbours)
+            a, b = max(min(a, span[0] + 1), 0), min(max(b, span[1] - 1), k - 1)
+        if b - a + 1 > 0.5 * k and span is None:
             return None, None
         lo, hi = max(a - 1, 0), min(b + 1, k - 1)
         sub = T.window_terms(terms, lo, hi)

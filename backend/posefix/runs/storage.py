@@ -199,9 +199,10 @@ def _solution_classes() -> dict[str, type]:
     from posefix.core.rules import Refusal
     from posefix.core.solver import Linearisation, SolverResult
     from posefix.core.terms import Terms
+    from posefix.engine.calibrate import Calibration, ProcessFit
     from posefix.engine.results import Solution
 
-    classes = (Solution, KeyframeSet, SolverResult, DriftEstimate, Terms, Refusal, Linearisation)
+    classes = (Solution, KeyframeSet, SolverResult, DriftEstimate, Terms, Refusal, Linearisation, Calibration, ProcessFit)
     return {f"{c.__module__}:{c.__qualname__}": c for c in classes}
 
 

@@ -71,12 +71,15 @@ export function driftFrom(raw: unknown): Drift | null {
   let offset = num(d.offset_m);
   const enu = d.offset_enu_m;
   if (offset === null && Array.isArray(enu) && num(enu[0]) !== null && num(enu[1]) !== null) offset = Math.hypot(Number(enu[0]), Number(enu[1]));
+  const cal = d.calibration && typeof d.calibration === "object" ? d.calibration as Record<string, unknown> : null;
   return {
     offset_m: offset,
     spread_m: num(d.spread_m),
     max_bias_m: num(d.max_bias_m),
     detected: typeof d.detected === "boolean" ? d.detected : null,
     n_edits: num(d.n_edits),
+    model: cal && typeof cal.model === "string" ? cal.model : null,
+    cv_rmse_m: cal ? num(cal.cv_rmse_m) : null,
   };
 }
 

@@ -48,6 +48,10 @@ export interface Drift {
   max_bias_m: number | null;
   detected: boolean | null;
   n_edits: number | null;
+  /** The model the run's own held-out edits chose (gnss, plain, relative, prior), and its
+   * cross-validated RMSE at the edits (m). */
+  model: string | null;
+  cv_rmse_m: number | null;
 }
 
 /** A run's keyframes at one revision: what the editor edits against. */

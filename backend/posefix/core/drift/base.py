@@ -49,6 +49,8 @@ class DriftEstimate:
     tau_s: float = 0.0
     n_steps: int = 0
     loc_sigma_h_m: np.ndarray | None = None
+    calibration: object | None = None  # engine.calibrate.Calibration: the model the run's edits chose
+
 
     def to_json(self) -> dict:
         return {
@@ -62,6 +64,7 @@ class DriftEstimate:
             "detected": bool(self.detected),
             "n_edits": int(len(self.edit_t_s)),
             "max_bias_m": float(np.max(np.hypot(*self.bias_enu_m[:, :2].T))) if len(self.bias_enu_m) else 0.0,
+            "calibration": None if self.calibration is None else self.calibration.to_json(),
         }
 
 

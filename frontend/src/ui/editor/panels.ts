@@ -3,6 +3,7 @@ import { STATUS_COLORS, STATUS_LABELS } from "../../map/features";
 import { type EditorState, type KeyframeStatus, currentDrift, currentEdits, editCount, keyframeStatuses } from "../../state/editor";
 import { canRedo, canUndo, redoLabel, undoLabel } from "../../state/history";
 import { h } from "../dom";
+import type { Drift } from "../../state/types";
 
 const ORDER: KeyframeStatus[] = ["adjustable", "fixed", "locked", "moved", "deleted", "flagged"];
 
@@ -76,13 +77,20 @@ export function driftInfo(s: EditorState): HTMLElement {
   if (!d || (d.offset_m === null && !d.n_edits)) {
     return h("p", { class: "muted", "data-testid": "drift" }, "No drift estimate yet: it needs moved keyframes.");
   }
-  return h("p", { "data-testid": "drift" },
+  return h("p", { "data-testid": "drift" }, driftText(d));
+}
+
+/** The drift estimate in words, with the model the run's held-out edits chose. */
+export function driftText(d: Drift): string {
+  return [
     d.detected === false ? "No GNSS drift detected" : d.offset_m !== null ? `GNSS offset ${d.offset_m.toFixed(1)} m` : "GNSS drift estimated",
     d.spread_m !== null && Number.isFinite(d.spread_m) ? ` (spread ${d.spread_m.toFixed(1)} m)` : "",
     d.max_bias_m !== null && d.max_bias_m > 0 ? `, largest bias ${d.max_bias_m.toFixed(1)} m` : "",
     d.n_edits ? ` from ${d.n_edits} edit${d.n_edits === 1 ? "" : "s"}` : "",
     ".",
-  );
+    d.model ? ` Model: ${d.model}` : "",
+    d.model && d.cv_rmse_m !== null ? `, cross-validated RMSE ${d.cv_rmse_m.toFixed(2)} m at held-out edits.` : d.model ? "." : "",
+  ].join("");
 }
 
 /** A keyframe time as seconds into the run, plus the clock time when `t_s` is a Unix time. */

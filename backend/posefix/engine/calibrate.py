@@ -1,0 +1,286 @@
+"""Per-run calibration: the noise model estimated from the run's own edits, and the model the
+run's held-out edits choose.
+
+Data, per horizontal axis, at the edit times t_k (sorted): the pose's error at the edit
+``y_k = p~_k - c_k`` and, with raw GNSS, the fix's error there ``d_k = g~_k - c_k``
+(``drift.edit_offsets``: the fix made robust by a median over neighbouring keyframes).
+
+1. Processes from variograms.  For pairs of edits j > k at lag h = t_j - t_k the robust
+   (Cressie-Hawkins) semivariance per axis is
+
+       gamma(h) = (mean |y_j - y_k|^(1/2))^4 / (0.457 + 0.494 / N) / 2
+
+   pooled over lag bins (both axes).  Two processes are fitted by weighted least squares
+   (weights N / gamma^2), each with a nugget n (edit noise plus white error):
+
+       random walk:    gamma(h) = n + q h / 2
+       Gauss-Markov:   gamma(h) = n + sigma^2 (1 - exp(-h / tau))     (tau on a log grid)
+
+   The same for d gives the fix's error process (white part n, bias sigma_b, tau_b; the
+   robust estimator keeps outliers from inflating it).
+2. Smoothers and leave-one-out residuals.  Each process is a linear-Gaussian state-space
+   model observed at the edits (``drift.smooth_gauss_markov``: Kalman filter and RTS
+   smoother).  The smoothed variance P_k is the diagonal of the inverse of the banded
+   (tridiagonal) information matrix, so the prediction of edit k from all the others follows
+   without refitting (R = n the observation variance):
+
+       r_k,loo = (y_k - x_k) R / (R - P_k),      V_k,loo = P_k R / (R - P_k) + R
+
+   (``loo_residuals``; equal to refitting without edit k, tested).  Of the two processes the
+   one with the smaller leave-one-out RMSE describes the pose's error (``best_process``).
+3. How far the fix's error and the pose's error are the same error.  At held-out edit k the
+   pose predicts the truth with error r_e = y_k - y^_k,-k and the bias-corrected fix with
+   error r_g = d_k - d^_k,-k.  The fused prediction (1 - w) r_e + w r_g is best at
+
+       w* = clip(sum r_e . (r_e - r_g) / sum |r_e - r_g|^2, 0, 1)
+
+   A pose that already fused the fix (EKF, GNSS/INS) carries the same error: r_g follows r_e
+   and w* falls towards zero (reported as ``gnss_share``).
+4. Model choice by the run's own held-out edits.  The candidates are solved by the engine
+   itself (``Problem.solve_calibrated``): ``gnss`` (the location term with the drift model,
+   the GNSS level model and the edit bends: the calibrated model), ``plain`` (the location
+   term at its configured sigma, no drift model, no bends: GTSAM's standard graph) and
+   ``relative`` (pose plus edits, no location term: naive interpolation's own assumption,
+   solved with the relative terms); without raw GNSS only ``relative``.  Each of up to
+   ``CV_MAX_HELD_OUT`` edits is held out in turn and predicted by a local solve without it
+   (held at the edits either side; the candidate's drift re-estimated without the edit, so
+   the edit cannot vouch for itself).  The calibrated model stands unless another predicts
+   the held-out edits better by more than their noise allows (``choose``).  With fewer than
+   ``MIN_EDITS`` edits nothing can be held out and the stated prior decides (``prior``: the
+   location term with the drift prior, whose bias fades from each edit over its tau).
+5. Predicted accuracy.  With a location term the error is spread along the run: the
+   predicted RMSE is the held-out RMSE.  Without one the error is a bridge between edits,
+   smallest at the edits: the pose process's variance V_i bridged to each keyframe
+   (``drift.bias_at``, observed with the edits' own noise) scaled by the held-out residuals,
+   s^2 = mean(|r|^2 / (2 V_loo)), gives the 1-sigma ``s sqrt(2 V_i)`` and the predicted
+   RMSE ``sqrt(mean_i 2 s^2 V_i)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from posefix.core.drift import bias_at, smooth_gauss_markov
+
+MIN_EDITS = 3  # fewer: nothing to hold out, the prior decides
+CV_MAX_HELD_OUT = 12  # edits held out one at a time (spread evenly): enough to rank two models
+SWITCH_MARGIN = 0.6  # another model replaces the calibrated one below 1 - this / sqrt(held-out edits) of its RMSE
+RW_TAU_S = 1e7  # a random walk as a Gauss-Markov process with a correlation time far beyond any run
+TAU_GRID_S = np.geomspace(10.0, 1e4, 31)
+
+
+@dataclass(frozen=True)
+class ProcessFit:
+    """A scalar error process per axis: nugget (white, m^2) plus a random walk or Gauss-Markov part."""
+
+    kind: str  # "random_walk" | "gauss_markov"
+    nugget_m2: float
+    sigma2_m2: float  # stationary variance (random walk: q tau / 2 at RW_TAU_S)
+    tau_s: float
+    q_m2_per_s: float  # wander rate: q = 2 sigma^2 / tau
+
+    def to_json(self) -> dict:
+        return {"kind": self.kind, "nugget_m": float(np.sqrt(self.nugget_m2)), "q_m2_per_s": float(self.q_m2_per_s),
+                "sigma_m": None if self.kind == "random_walk" else float(np.sqrt(self.sigma2_m2)),
+                "tau_s": None if self.kind == "random_walk" else float(self.tau_s)}
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What the run's own edits say: the chosen model and how well it predicts held-out edits.
+
+    model: "relative" | "gnss" | "prior"; cv_rmse_m: leave-one-out horizontal RMSE at the
+    edits of the chosen model (NaN with fewer than MIN_EDITS); cv_rmse_by_model: each
+    candidate's; predicted_rmse_m: the run-wide RMSE the scaled model predicts; gnss_share:
+    w* (section 3); sigma_m (k,): horizontal 1-sigma of the correction per keyframe.
+    """
+
+    model: str
+    cv_rmse_m: float
+    cv_rmse_by_model: dict = field(default_factory=dict)
+    predicted_rmse_m: float = float("nan")
+    gnss_share: float = float("nan")
+    n_edits: int = 0
+    pose: ProcessFit | None = None
+    gnss: ProcessFit | None = None
+    sigma_m: np.ndarray | None = None
+
+    def to_json(self) -> dict:
+        def num(v):
+            return None if v is None or not np.isfinite(v) else round(float(v), 4)
+
+        return {"model": self.model, "cv_rmse_m": num(self.cv_rmse_m), "predicted_rmse_m": num(self.predicted_rmse_m),
+                "cv_rmse_by_model": {k: num(v) for k, v in self.cv_rmse_by_model.items()},
+                "gnss_share": num(self.gnss_share), "n_edits": int(self.n_edits),
+                "pose_process": None if self.pose is None else self.pose.to_json(),
+                "gnss_process": None if self.gnss is None else self.gnss.to_json()}
+
+
+def variogram(t_s: np.ndarray, y: np.ndarray, max_lag: int = 8, n_bins: int = 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Robust semivariance per axis of y (m,d) at sorted times: lag centres (b,), gamma (b,), pairs (b,).
+
+    Pairs of edits up to ``max_lag`` apart in order, binned by log lag (Cressie-Hawkins,
+    module docstring 1).
+    """
+    m = len(t_s)
+    lags, roots = [], []
+    for j in range(1, min(max_lag, m - 1) + 1):
+        h = t_s[j:] - t_s[:-j]
+        diff = np.abs(y[j:] - y[:-j])  # (m-j, d)
+        lags.append(np.repeat(h, y.shape[1]))
+        roots.append(np.sqrt(diff).ravel())
+    if not lags:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    h, r = np.concatenate(lags), np.concatenate(roots)
+    ok = h > 0
+    h, r = h[ok], r[ok]
+    if len(h) == 0:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    edges = np.geomspace(h.min() * 0.999, h.max() * 1.001, n_bins + 1)
+    b = np.clip(np.searchsorted(edges, h, side="right") - 1, 0, n_bins - 1)
+    n = np.bincount(b, minlength=n_bins).astype(float)
+    s = np.bincount(b, weights=r, minlength=n_bins)
+    sh = np.bincount(b, weights=h, minlength=n_bins)
+    keep = n > 0
+    n, s, sh = n[keep], s[keep], sh[keep]
+    gamma = (s / n) ** 4 / (0.457 + 0.494 / n) / 2.0
+    return sh / n, gamma, n
+
+
+def _nonneg_lsq(A: np.ndarray, g: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
+    """Weighted least squares of g ~ A x with x >= 0 (two unknowns: every active set tried)."""
+    best, best_cost = np.zeros(A.shape[1]), np.inf
+    sw = np.sqrt(w)
+    for mask in ((True, True), (True, False), (False, True)):
+        cols = np.flatnonzero(mask)
+        x_c, *_ = np.linalg.lstsq(A[:, cols] * sw[:, None], g * sw, rcond=None)
+        if np.any(x_c < 0):
+            continue
+        x = np.zeros(A.shape[1])
+        x[cols] = x_c
+        cost = float(np.sum(w * (A @ x - g) ** 2))
+        if cost < best_cost:
+            best, best_cost = x, cost
+    return best, best_cost
+
+
+def fit_processes(h: np.ndarray, gamma: np.ndarray, n: np.ndarray, floor_m2: float) -> list[ProcessFit]:
+    """Random-walk and Gauss-Markov fits (with nugget >= ``floor_m2``) to a variogram."""
+    if len(h) == 0:
+        return []
+    w = n / np.maximum(gamma, floor_m2) ** 2
+    fits = []
+    x, _ = _nonneg_lsq(np.column_stack([np.ones_like(h), h / 2.0]), gamma, w)
+    q = max(x[1], 1e-8)
+    fits.append(ProcessFit("random_walk", max(x[0], floor_m2), q * RW_TAU_S / 2.0, RW_TAU_S, q))
+    best = None
+    for tau in TAU_GRID_S:
+        x, cost = _nonneg_lsq(np.column_stack([np.ones_like(h), 1.0 - np.exp(-h / tau)]), gamma, w)
+        if best is None or cost < best[0]:
+            best = (cost, tau, x)
+    _, tau, x = best
+    s2 = max(x[1], 1e-8)
+    fits.append(ProcessFit("gauss_markov", max(x[0], floor_m2), s2, float(tau), 2.0 * s2 / tau))
+    return fits
+
+
+def loo_residuals(t_s: np.ndarray, y: np.ndarray, fit: ProcessFit) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Leave-one-out residuals (m,d) and predictive variances (m,) of a process observed at the
+    edits (module docstring 2), with the smoothed means (m,d) and variances (m,)."""
+    R = fit.nugget_m2
+    xs, P = smooth_gauss_markov(t_s, y, np.full(len(t_s), R), fit.sigma2_m2, fit.tau_s)
+    P = np.minimum(P, R * (1.0 - 1e-9))  # P < R always holds; guards round-off
+    gain = R / (R - P)
+    r = (y - xs) * gain[:, None]
+    V = P * gain + R
+    return r, V, xs, P
+
+
+def _score(r: np.ndarray) -> float:
+    """Horizontal RMSE of residuals (m,2)."""
+    return float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) if len(r) else float("nan")
+
+
+def best_process(t_s: np.ndarray, y: np.ndarray, floor_m2: float):
+    """The fitted process with the smaller leave-one-out RMSE, and its residuals and variances."""
+    h, gamma, n = variogram(t_s, y)
+    best = None
+    for fit in fit_processes(h, gamma, n, floor_m2):
+        r, V, xs, P = loo_residuals(t_s, y, fit)
+        score = _score(r)
+        if best is None or score < best[1]:
+            best = (fit, score, r, V, xs, P)
+    return best
+
+
+def prior_calibration(n_edits: int) -> Calibration:
+    """Fewer than MIN_EDITS edits: the cautious prior, nothing held out."""
+    return Calibration(model="prior", cv_rmse_m=float("nan"), n_edits=n_edits)
+
+
+def candidates(model: str, has_gnss: bool) -> tuple[str, ...]:
+    """The models to score: all three with raw GNSS under "auto"; without it the location term
+    would pull towards the reported pose itself, so only the relative model; a forced model alone."""
+    if model != "auto":
+        return (model,)
+    return ("gnss", "plain", "relative") if has_gnss else ("relative",)
+
+
+def held_out_picks(m: int, n_max: int) -> np.ndarray:
+    """Which edits to hold out, one at a time: all of them up to ``n_max``, else ``n_max`` spread evenly."""
+    return np.unique(np.round(np.linspace(0, m - 1, min(n_max, m))).astype(np.int64))
+
+
+def choose(scores: dict[str, float], n_held_out: int) -> str:
+    """The model the held-out edits choose.  The calibrated model (``gnss``: the location term
+    with the drift model; without GNSS the pose and edits alone) stands unless another predicts
+    the held-out edits better by more than their noise allows: a held-out RMSE below
+    ``1 - SWITCH_MARGIN / sqrt(n)`` of the incumbent's (n held-out edits; about 25 % with six,
+    10 % with thirty-six), so a handful of edits cannot swap models on chance."""
+    incumbent = "gnss" if "gnss" in scores else next(iter(scores))
+    need = (1.0 - SWITCH_MARGIN / np.sqrt(max(n_held_out, 1))) * scores[incumbent]
+    best = incumbent
+    for name, value in scores.items():
+        if name != incumbent and value < need and value < scores[best]:
+            best = name
+    return best
+
+
+def calibration_of(model: str, scores: dict[str, float], residuals_m: np.ndarray, picks: np.ndarray,
+                   kf_t_s: np.ndarray, y_m: np.ndarray, d_m: np.ndarray | None, edit_t_s: np.ndarray,
+                   edit_sigma_m: float) -> Calibration:
+    """The calibration of the chosen model: processes fitted to the edits (``y_m``, ``d_m``: pose and
+    fix error at the sorted edit times), the chosen model's variances along the run scaled by its
+    held-out residuals ``residuals_m`` (n,2) at edits ``picks`` (module docstring 5)."""
+    m = len(edit_t_s)
+    floor = max(edit_sigma_m**2, 1e-4)
+    fit_e, _, r_e, _, _, _ = best_process(edit_t_s, y_m, floor)
+    # the band's shape: the fitted process observed with the edits' own noise (the engine holds
+    # each edit to its sigma), so V at an edit is what the edits either side leave of it
+    _, V_e, xs_e, P_e = loo_residuals(edit_t_s, y_m, dataclasses.replace(fit_e, nugget_m2=floor))
+    _, v_run = bias_at(kf_t_s, edit_t_s, xs_e, P_e, fit_e.sigma2_m2, fit_e.tau_s)
+    V, gnss_fit, share = V_e, None, float("nan")
+    if d_m is not None and np.all(np.isfinite(d_m)):
+        gnss_fit, _, r_g, _, _, _ = best_process(edit_t_s, d_m, floor)
+        diff = r_e - r_g
+        den = float(np.sum(diff**2))
+        share = float(np.clip(np.sum(r_e * diff) / den, 0.0, 1.0)) if den > 0 else 0.0
+        if model != "relative":
+            _, V_g, xs_g, P_g = loo_residuals(edit_t_s, d_m, dataclasses.replace(gnss_fit, nugget_m2=floor))
+            _, v_g = bias_at(kf_t_s, edit_t_s, xs_g, P_g, gnss_fit.sigma2_m2, gnss_fit.tau_s)
+            v_run = (1 - share) ** 2 * v_run + share**2 * v_g
+            V = (1 - share) ** 2 * V_e + share**2 * V_g
+    # held-out edits sit where their neighbours leave the most doubt; the run's keyframes on
+    # average nearer an edit: the pose-only model's error shrinks by the shape's ratio (a random
+    # walk bridged between edits: 1/3 of the variance); the location term's is spread evenly
+    s2 = float(np.mean(np.sum(residuals_m**2, axis=1) / (2.0 * V[picks]))) if len(picks) else 1.0
+    if model != "relative":
+        sigma_h = np.full(len(kf_t_s), scores[model])
+    else:
+        sigma_h = np.sqrt(np.maximum(2.0 * s2 * v_run, 0.0))
+    return Calibration(model=model, cv_rmse_m=scores[model], cv_rmse_by_model=dict(scores),
+                       predicted_rmse_m=float(np.sqrt(np.mean(sigma_h**2))), gnss_share=share, n_edits=m,
+                       pose=fit_e, gnss=gnss_fit, sigma_m=sigma_h)

@@ -1,0 +1,94 @@
+"""Per-run calibration (engine.calibrate) and the model the run's own edits choose."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from posefix.core import geodesy
+from posefix.core import terms as T
+from posefix.core.drift import smooth_gauss_markov
+from posefix.core.simulate import simulate
+from posefix.core.solver import solve_banded
+from posefix.engine import CorrectionConfig, prepare
+from posefix.engine.calibrate import ProcessFit, best_process, fit_processes, loo_residuals, variogram
+from posefix.io.edits import EditSet, Move
+
+
+def _walk(rng, t, q, nugget):
+    e = np.cumsum(rng.standard_normal((len(t), 2)) * np.sqrt(q * np.diff(t, prepend=t[0] - 1.0))[:, None], axis=0)
+    return e + rng.standard_normal((len(t), 2)) * np.sqrt(nugget)
+
+
+def test_variogram_recovers_a_random_walk_and_its_nugget():
+    rng = np.random.default_rng(1)
+    t = np.cumsum(rng.uniform(5.0, 40.0, 800))
+    y = _walk(rng, t, q=0.02, nugget=0.25)
+    fits = {f.kind: f for f in fit_processes(*variogram(t, y), floor_m2=0.01)}
+    rw = fits["random_walk"]
+    assert abs(rw.q_m2_per_s - 0.02) < 0.2 * 0.02
+    assert abs(rw.nugget_m2 - 0.25) < 0.35 * 0.25
+
+
+def test_variogram_recovers_a_gauss_markov_process():
+    rng = np.random.default_rng(2)
+    t = np.cumsum(rng.uniform(10.0, 40.0, 1500))
+    sigma, tau = 4.0, 200.0
+    x = np.zeros((len(t), 2))
+    x[0] = rng.standard_normal(2) * sigma
+    a = np.exp(-np.diff(t) / tau)
+    for i in range(1, len(t)):
+        x[i] = a[i - 1] * x[i - 1] + np.sqrt(1 - a[i - 1] ** 2) * sigma * rng.standard_normal(2)
+    y = x + rng.standard_normal(x.shape) * 0.5
+    fit, *_ = best_process(t, y, floor_m2=0.01)
+    assert fit.kind == "gauss_markov"
+    assert abs(np.sqrt(fit.sigma2_m2) - sigma) < 0.2 * sigma
+    assert 0.6 * tau < fit.tau_s < 1.6 * tau
+
+
+def test_leave_one_out_from_the_smoother_equals_refitting_without_the_edit():
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(30.0, 120.0, 25))
+    y = _walk(rng, t, q=0.05, nugget=0.3)
+    for fit in (ProcessFit("gauss_markov", 0.3, 9.0, 400.0, 2 * 9.0 / 400.0),
+                ProcessFit("random_walk", 0.3, 0.05 * 1e7 / 2, 1e7, 0.05)):
+        r, V, _, _ = loo_residuals(t, y, fit)
+        for k in range(len(t)):
+            # refit without edit k: its observation carries no information (variance 1e30)
+            r_var = np.full(len(t), fit.nugget_m2)
+            r_var[k] = 1e30
+            xs, P = smooth_gauss_markov(t, y, r_var, fit.sigma2_m2, fit.tau_s)
+            np.testing.assert_allclose(r[k], y[k] - xs[k], rtol=1e-6, atol=1e-8)
+            np.testing.assert_allclose(V[k], P[k] + fit.nugget_m2, rtol=1e-6)
+
+
+def _edits(sim):
+    return EditSet(moves=[Move(e.t_s, e.lat_deg, e.lon_deg, None) for e in sim.edits])
+
+
+def test_without_gnss_the_result_is_relative_terms_interpolation_of_the_edits():
+    sim = simulate(duration_s=900.0, rate_hz=2.0, edit_every_s=100.0, seed=4, regime="drift", gnss_columns=False)
+    problem = prepare(sim.run)
+    sol = problem.solve(_edits(sim))
+    assert sol.drift.calibration.model == "relative"
+    assert np.isfinite(sol.drift.calibration.cv_rmse_m)
+    # the same keyframes solved from the reported pose with the relative, gravity and edit terms only
+    terms = dataclasses.replace(sol.terms, loc_w=np.zeros_like(sol.terms.loc_w))
+    x, _ = solve_banded(terms, None, 100, 1e-12)
+    assert np.max(np.abs(T.split_state(x)[0] - sol.keyframes.p_enu_m[sol.active])) < 2e-3
+    assert sol.solver.cost_after["location"] == 0.0
+
+
+def test_one_edit_moves_a_ten_minute_run_only_near_the_edit():
+    sim = simulate(duration_s=600.0, rate_hz=5.0, edit_every_s=0.0, seed=6, regime="white")
+    problem = prepare(sim.run, CorrectionConfig())
+    i = int(np.searchsorted(sim.run.t_s, sim.run.t_s[0] + 300.0))
+    p = problem.p_enu_m[i] + np.array([6.0, -4.0, 0.0])
+    lat, lon, _ = geodesy.enu_to_geodetic(p[None], problem.origin)
+    out = problem.full_run(problem.solve(EditSet(moves=[Move(float(sim.run.t_s[i]), float(lat[0]), float(lon[0]))])))
+    assert out.drift.calibration.model == "prior"
+    moved = np.hypot(*(problem.to_enu(out.run.lon_deg, out.run.lat_deg, out.run.alt_m) - problem.p_enu_m)[:, :2].T)
+    dt = np.abs(sim.run.t_s - sim.run.t_s[i])
+    assert moved[i] > 5.0  # the edited sample follows the edit (7.2 m)
+    assert moved[dt > 180.0].max() < 0.1 * moved[i]  # three minutes away the run stays where it was
