@@ -88,11 +88,15 @@ def test_edits_beat_a_biased_gnss_track():
     for row in range(150, 3001, 1000):
         la, lo, _ = geodesy.enu_to_geodetic(p[row][None], ORIGIN)
         truth_moves.append(Move(float(run.t_s[row]), float(la[0]), float(lo[0]), None))
-    out = correct(biased, EditSet(moves=truth_moves))
+    out = correct(biased, EditSet(moves=truth_moves))  # the model the held-out edits choose
+    assert np.sqrt(np.mean(np.hypot(*(enu(out.run)[:, :2] - p[:, :2]).T) ** 2)) < 0.5
+    gnss = CorrectionConfig.from_dict({"calibration": {"model": "gnss"}})
+    out = correct(biased, EditSet(moves=truth_moves), gnss)  # the location term with the drift model
     err = np.hypot(*(enu(out.run)[:, :2] - p[:, :2]).T)
     assert np.sqrt(np.mean(err**2)) < 0.5, np.sqrt(np.mean(err**2))
     assert out.drift.detected and np.hypot(*out.drift.offset_enu_m[:2]) > 13.0
-    no_drift = correct(biased, EditSet(moves=truth_moves), CorrectionConfig.from_dict({"drift": {"enabled": False}}))
+    no_drift = correct(biased, EditSet(moves=truth_moves),
+                       CorrectionConfig.from_dict({"drift": {"enabled": False}, "calibration": {"model": "gnss"}}))
     err_nd = np.hypot(*(enu(no_drift.run)[:, :2] - p[:, :2]).T)
     assert np.sqrt(np.mean(err_nd**2)) > 2.0 * np.sqrt(np.mean(err**2))
     assert g.shape == p.shape

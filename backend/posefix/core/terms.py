@@ -556,3 +556,21 @@ def normal_equations(
     D[:, 3:, 3:] += ata(Gt, Gt)
     g[:, 3:] += np.einsum("mri,mr->mi", Gt, ev.grav_r)
     return D, U, g.ravel()
+
+
+def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:
+    """(k-1,) sideways and vertical motion between keyframes beyond what a vehicle can do, metres.
+
+    A road vehicle does not slide sideways or jump vertically faster than ``max_speed_mps``
+    (side slip and bumps stay well below 0.5 m/s).  A reported step with more body-frame
+    lateral/vertical motion than that carries a jump of the pose's error (an INS following
+    an urban-canyon GNSS offset); its relative-translation sigma grows by the excess so the
+    correction can undo the jump there rather than smear it over the whole interval.
+    0 disables the check (pedestrians, handheld devices).
+    """
+    if max_speed_mps <= 0 or len(p_enu_m) < 2:
+        return np.zeros(max(len(p_enu_m) - 1, 0))
+    R = rot.quat_to_matrix(rot.normalize_quat(q_wxyz))
+    delta = np.einsum("kji,kj->ki", R[:-1], np.diff(p_enu_m, axis=0))
+    dR = np.einsum("kji,kjl->kil", R[:-1], R[1:])
+    return vehicle_motion(delta, dR, dt_s, max_speed_mps)[1]  # measured half-way through the step

@@ -12,7 +12,8 @@ live drag the server answers), ``window`` (local solves), ``results`` (what come
 
 from posefix.core.config import ConfigError, CorrectionConfig
 from posefix.engine.edits import Edit, Edits
-from posefix.engine.problem import Problem, correct, implausible_motion_m, prepare
+from posefix.core.terms import implausible_motion_m
+from posefix.engine.problem import Problem, correct, prepare
 from posefix.engine.results import Correction, EditRefusedError, Preview, Solution
 
 __all__ = [

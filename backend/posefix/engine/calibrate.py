@@ -45,15 +45,19 @@ Data, per horizontal axis, at the edit times t_k (sorted): the pose's error at t
    ``CV_MAX_HELD_OUT`` edits is held out in turn and predicted by a local solve without it
    (held at the edits either side; the candidate's drift re-estimated without the edit, so
    the edit cannot vouch for itself).  The calibrated model stands unless another predicts
-   the held-out edits better by more than their noise allows (``choose``).  With fewer than
+   the same held-out edits better by more than their scatter allows (``choose``: a paired
+   gain in squared error above one standard error).  With fewer than
    ``MIN_EDITS`` edits nothing can be held out and the stated prior decides (``prior``: the
-   location term with the drift prior, whose bias fades from each edit over its tau).
-5. Predicted accuracy.  With a location term the error is spread along the run: the
-   predicted RMSE is the held-out RMSE.  Without one the error is a bridge between edits,
-   smallest at the edits: the pose process's variance V_i bridged to each keyframe
-   (``drift.bias_at``, observed with the edits' own noise) scaled by the held-out residuals,
-   s^2 = mean(|r|^2 / (2 V_loo)), gives the 1-sigma ``s sqrt(2 V_i)`` and the predicted
-   RMSE ``sqrt(mean_i 2 s^2 V_i)``.
+   calibrated model with the drift prior, whose bias fades from each edit over its tau of a
+   minute, so one edit moves the run near it, not the whole run).
+5. Predicted accuracy.  Held-out edits sit where the edits either side leave the most doubt.
+   A model that keeps the pose's shape between edits (relative, gnss) has an error bridged
+   between them, smallest at the edits: the pose process's variance V_i bridged to each
+   keyframe (``drift.bias_at``, observed with the edits' own noise) against its leave-one-out
+   variance at the held-out edits gives f = sqrt(mean_i V_i / mean_k V_loo,k) (a random walk:
+   1/sqrt 3), kept in [0.5, 1]; the predicted RMSE of the run is f times the held-out RMSE and
+   the 1-sigma along the run follows sqrt(V_i) at that RMSE.  The plain location term's
+   error follows the fixes, spread evenly: f = 1.
 """
 
 from __future__ import annotations
@@ -67,7 +71,7 @@ from posefix.core.drift import bias_at, smooth_gauss_markov
 
 MIN_EDITS = 3  # fewer: nothing to hold out, the prior decides
 CV_MAX_HELD_OUT = 12  # edits held out one at a time (spread evenly): enough to rank two models
-SWITCH_MARGIN = 0.6  # another model replaces the calibrated one below 1 - this / sqrt(held-out edits) of its RMSE
+SWITCH_Z = 1.0  # another model replaces the calibrated one when its paired gain on the held-out edits exceeds this many standard errors
 RW_TAU_S = 1e7  # a random walk as a Gauss-Markov process with a correlation time far beyond any run
 TAU_GRID_S = np.geomspace(10.0, 1e4, 31)
 
@@ -234,27 +238,35 @@ def held_out_picks(m: int, n_max: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, m - 1, min(n_max, m))).astype(np.int64))
 
 
-def choose(scores: dict[str, float], n_held_out: int) -> str:
-    """The model the held-out edits choose.  The calibrated model (``gnss``: the location term
-    with the drift model; without GNSS the pose and edits alone) stands unless another predicts
-    the held-out edits better by more than their noise allows: a held-out RMSE below
-    ``1 - SWITCH_MARGIN / sqrt(n)`` of the incumbent's (n held-out edits; about 25 % with six,
-    10 % with thirty-six), so a handful of edits cannot swap models on chance."""
-    incumbent = "gnss" if "gnss" in scores else next(iter(scores))
-    need = (1.0 - SWITCH_MARGIN / np.sqrt(max(n_held_out, 1))) * scores[incumbent]
-    best = incumbent
-    for name, value in scores.items():
-        if name != incumbent and value < need and value < scores[best]:
-            best = name
+def choose(residuals: dict[str, np.ndarray]) -> str:
+    """The model the held-out edits choose from each candidate's held-out residuals (n,2).
+
+    The calibrated model (``gnss``: the location term with the drift model; without GNSS the
+    pose and edits alone) stands unless another predicts the same held-out edits better by
+    more than their scatter allows: the paired gain d_k = |r_k,inc|^2 - |r_k,other|^2 must
+    have a mean above ``SWITCH_Z`` standard errors, so a handful of edits, or one lucky
+    stretch, cannot swap models on chance.
+    """
+    incumbent = "gnss" if "gnss" in residuals else next(iter(residuals))
+    e_inc = np.sum(residuals[incumbent] ** 2, axis=1)
+    best, best_mse = incumbent, float(np.mean(e_inc))
+    for name, r in residuals.items():
+        if name == incumbent:
+            continue
+        e = np.sum(r**2, axis=1)
+        d = e_inc - e
+        se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else np.inf
+        if float(np.mean(d)) > SWITCH_Z * se and float(np.mean(e)) < best_mse:
+            best, best_mse = name, float(np.mean(e))
     return best
 
 
-def calibration_of(model: str, scores: dict[str, float], residuals_m: np.ndarray, picks: np.ndarray,
+def calibration_of(model: str, scores: dict[str, float], picks: np.ndarray,
                    kf_t_s: np.ndarray, y_m: np.ndarray, d_m: np.ndarray | None, edit_t_s: np.ndarray,
                    edit_sigma_m: float) -> Calibration:
     """The calibration of the chosen model: processes fitted to the edits (``y_m``, ``d_m``: pose and
-    fix error at the sorted edit times), the chosen model's variances along the run scaled by its
-    held-out residuals ``residuals_m`` (n,2) at edits ``picks`` (module docstring 5)."""
+    fix error at the sorted edit times), and the accuracy the chosen model's held-out RMSE (``scores``,
+    from the edits ``picks`` in time order) predicts along the run (module docstring 5)."""
     m = len(edit_t_s)
     floor = max(edit_sigma_m**2, 1e-4)
     fit_e, _, r_e, _, _, _ = best_process(edit_t_s, y_m, floor)
@@ -262,25 +274,24 @@ def calibration_of(model: str, scores: dict[str, float], residuals_m: np.ndarray
     # each edit to its sigma), so V at an edit is what the edits either side leave of it
     _, V_e, xs_e, P_e = loo_residuals(edit_t_s, y_m, dataclasses.replace(fit_e, nugget_m2=floor))
     _, v_run = bias_at(kf_t_s, edit_t_s, xs_e, P_e, fit_e.sigma2_m2, fit_e.tau_s)
-    V, gnss_fit, share = V_e, None, float("nan")
+    gnss_fit, share = None, float("nan")
     if d_m is not None and np.all(np.isfinite(d_m)):
         gnss_fit, _, r_g, _, _, _ = best_process(edit_t_s, d_m, floor)
         diff = r_e - r_g
         den = float(np.sum(diff**2))
         share = float(np.clip(np.sum(r_e * diff) / den, 0.0, 1.0)) if den > 0 else 0.0
-        if model != "relative":
-            _, V_g, xs_g, P_g = loo_residuals(edit_t_s, d_m, dataclasses.replace(gnss_fit, nugget_m2=floor))
-            _, v_g = bias_at(kf_t_s, edit_t_s, xs_g, P_g, gnss_fit.sigma2_m2, gnss_fit.tau_s)
-            v_run = (1 - share) ** 2 * v_run + share**2 * v_g
-            V = (1 - share) ** 2 * V_e + share**2 * V_g
-    # held-out edits sit where their neighbours leave the most doubt; the run's keyframes on
-    # average nearer an edit: the pose-only model's error shrinks by the shape's ratio (a random
-    # walk bridged between edits: 1/3 of the variance); the location term's is spread evenly
-    s2 = float(np.mean(np.sum(residuals_m**2, axis=1) / (2.0 * V[picks]))) if len(picks) else 1.0
-    if model != "relative":
-        sigma_h = np.full(len(kf_t_s), scores[model])
+    # held-out edits sit where the edits either side leave the most doubt, the run's keyframes on
+    # average nearer an edit.  A model that keeps the pose's shape between edits (relative, gnss)
+    # has an error bridged between them: its RMSE along the run is the held-out one times the
+    # bridge's ratio f = sqrt(mean_i V_i / mean_k V_loo,k) (a random walk: 1/sqrt 3), kept in
+    # [0.5, 1]; the plain location term's error follows the fixes, spread evenly (f = 1)
+    shape = np.sqrt(np.maximum(v_run, 0.0))
+    f = float(np.clip(np.sqrt(np.mean(v_run) / max(float(np.mean(V_e[picks])), 1e-12)), 0.5, 1.0)) if len(picks) else 1.0
+    predicted = scores[model] * (1.0 if model == "plain" else f)
+    if model == "plain" or not np.any(shape > 0):
+        sigma_h = np.full(len(kf_t_s), predicted)
     else:
-        sigma_h = np.sqrt(np.maximum(2.0 * s2 * v_run, 0.0))
+        sigma_h = shape * predicted / float(np.sqrt(np.mean(shape**2)))
     return Calibration(model=model, cv_rmse_m=scores[model], cv_rmse_by_model=dict(scores),
-                       predicted_rmse_m=float(np.sqrt(np.mean(sigma_h**2))), gnss_share=share, n_edits=m,
+                       predicted_rmse_m=float(predicted), gnss_share=share, n_edits=m,
                        pose=fit_e, gnss=gnss_fit, sigma_m=sigma_h)

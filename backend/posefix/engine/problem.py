@@ -27,7 +27,6 @@ from posefix.core.drift import (
     GnssLevels,
     GnssSteps,
     edit_bends,
-    edit_offsets,
     estimate_drift,
     gnss_levels,
     gnss_steps,
@@ -42,16 +41,8 @@ from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
 from posefix.core.solver import solve_banded
 from posefix.core.solver_reference import solve
-from posefix.engine.calibrate import (
-    CV_MAX_HELD_OUT,
-    MIN_EDITS,
-    Calibration,
-    calibration_of,
-    candidates,
-    choose,
-    held_out_picks,
-    prior_calibration,
-)
+from posefix.engine.calibrate import Calibration
+from posefix.engine.choose import solve_calibrated
 from posefix.engine.edits import Edit, Edits, targets_enu
 from posefix.engine.results import Correction, EditRefusedError, Preview, Solution
 from posefix.engine.window import solve_window
@@ -237,68 +228,12 @@ class Problem:
 
     # ----------------------------------------------------------------- solving
 
-    def solve_calibrated(self, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: np.ndarray, edit_has_alt: np.ndarray,
-                         deleted_kf: np.ndarray, warm_start=None, flags: list[Refusal] | None = None) -> Solution:
-        """A full solve with the model the run's own held-out edits choose (``engine.calibrate``).
-
-        Each candidate is solved with every edit, then each of up to ``CV_MAX_HELD_OUT`` edits is
-        held out and predicted by a local solve without it (the candidate's own drift model
-        re-estimated without the edit, so the edit cannot vouch for itself); the candidate with
-        the smaller held-out RMSE is kept.  With fewer than ``MIN_EDITS`` edits the prior decides.
-        """
-        edit_kf = np.asarray(edit_kf, dtype=np.int64)
-        edit_c_m = np.asarray(edit_c_m, dtype=float).reshape(-1, 3)
-        edit_has_alt = np.asarray(edit_has_alt, dtype=bool)
-        m = len(edit_kf)
-        args = (index, edit_kf, edit_c_m, edit_has_alt, deleted_kf)
-        if m < MIN_EDITS:
-            return self.solve_rows(*args, warm_start, flags, calibration=prior_calibration(m) if m else None)
-        picks = held_out_picks(m, CV_MAX_HELD_OUT)
-        solved = {}
-        for name in candidates(self.cfg.calibration.model, self.g_enu_m is not None):
-            sol = self.solve_rows(*args, warm_start, flags, calibration=Calibration(model=name, cv_rmse_m=float("nan")))
-            solved[name] = (sol, self._held_out_residuals(sol, *args, picks))
-        scores = {name: float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) for name, (_, r) in solved.items()}
-        model = choose(scores, len(picks))
-        sol, residuals = solved[model]
-        t_kf = self.run.t_s[index]
-        order = np.argsort(t_kf[edit_kf], kind="stable")  # edits in time order for the process fits
-        rank = np.empty(m, dtype=np.int64)
-        rank[order] = np.arange(m)
-        p_rep = self.p_enu_m[index]
-        e, c = edit_kf[order], edit_c_m[order]
-        y = p_rep[e, :2] - c[:, :2]
-        d = None
-        if self.g_enu_m is not None:
-            g = self.g_enu_m[index]
-            d = edit_offsets(t_kf, p_rep, np.where(np.all(np.isfinite(g), axis=1)[:, None], g, np.nan), e, c)[:, :2]
-        calib = calibration_of(model, scores, residuals, rank[picks], t_kf, y, d, t_kf[e], self.cfg.user.sigma_h_m)
-        return dataclasses.replace(sol, drift=dataclasses.replace(sol.drift, calibration=calib))
-
-    def _held_out_residuals(self, sol: Solution, index, edit_kf, edit_c_m, edit_has_alt, deleted_kf,
-                            picks: np.ndarray) -> np.ndarray:
-        """(n,2) horizontal error of the prediction of each picked edit by a local solve without it."""
-        out = np.zeros((len(picks), 2))
-        active_number = np.cumsum(sol.active) - 1
-        e_sorted = np.sort(active_number[edit_kf])
-        k_act = int(sol.active.sum())
-        for n, j in enumerate(picks):
-            keep = np.arange(len(edit_kf)) != j
-            # the edits either side pin the run: the window reaches them (held there), no further
-            at = int(np.searchsorted(e_sorted, active_number[edit_kf[j]]))
-            # (an end edit's window runs free to the run's end: -1 and k hold nothing)
-            span = (int(e_sorted[at - 1]) if at > 0 else -1, int(e_sorted[at + 1]) if at + 1 < len(e_sorted) else k_act)
-            s = self.solve_rows(index, edit_kf[keep], edit_c_m[keep], edit_has_alt[keep], deleted_kf,
-                                warm_start=sol, flags=sol.flags, local=True, span=span)
-            out[n] = s.keyframes.p_enu_m[edit_kf[j], :2] - edit_c_m[j, :2]
-        return out
 
     def estimate_drift(self, act_rows: np.ndarray, edit_kf: np.ndarray, edit_c_m: np.ndarray,
                        edit_has_alt: np.ndarray, held: DriftParams | None = None,
-                       g_nan: np.ndarray | None = None, fixes: bool = True) -> DriftEstimate:
+                       g_nan: np.ndarray | None = None) -> DriftEstimate:
         """The drift estimate (``drift.estimate_drift``) of edits at keyframes ``edit_kf`` (into
-        ``act_rows``) with ENU targets ``edit_c_m``; ``held`` keeps a previous solve's parameters;
-        ``fixes`` False: the location measurements are the reported pose (no GNSS steps or levels)."""
+        ``act_rows``) with ENU targets ``edit_c_m``; ``held`` keeps a previous solve's parameters."""
         cfg = self.cfg
         lc, uc = cfg.location, cfg.user
         t_act = self.run.t_s[act_rows]
@@ -309,8 +244,8 @@ class Problem:
             t_act, p_rep, g_nan, np.asarray(edit_kf, dtype=np.int64), np.asarray(edit_c_m, dtype=float).reshape(-1, 3),
             np.asarray(edit_has_alt, dtype=bool), lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
             cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
-            held=held, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan) if fixes else None,
-            levels=(lambda: self.gnss_levels(act_rows)) if fixes else None,
+            held=held, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan),
+            levels=lambda: self.gnss_levels(act_rows),
         )
 
     def solve_rows(
@@ -360,11 +295,6 @@ class Problem:
         if calib is None and local and same_rows:
             calib = warm_sol.drift.calibration
         g, has_fix, g_nan = self._location_measurements(act_rows)
-        if calib is not None and calib.model == "prior":
-            # too few edits to judge the fixes: the cautious prior holds the run where it was reported,
-            # the edits' offsets fading from each edit over the drift prior's tau
-            g = g_nan = p_rep
-            has_fix = np.ones(len(act_rows), dtype=bool)
         if not remove and np.any(deleted):
             has_fix = has_fix & ~deleted[active]  # a flagged (deleted) keyframe keeps no location term
             g_nan = np.where(has_fix[:, None], g, np.nan)
@@ -377,8 +307,8 @@ class Problem:
         if local and same_rows and warm_sol.drift.tau_s > 0:
             held = DriftParams.of(warm_sol.drift)
         relative_only = calib is not None and calib.model == "relative"
-        plain = calib is not None and calib.model in ("relative", "plain", "prior")
-        if plain and calib.model != "prior":
+        plain = calib is not None and calib.model in ("relative", "plain")
+        if plain:
             # no location term (the drift model has nothing to act on), or the plain one: fixes at
             # their configured sigma, without the drift model and the edit bends
             drift = no_drift(len(act_rows))
@@ -386,8 +316,7 @@ class Problem:
             if len(drift.bias_sigma_m) != len(act_rows):
                 raise ValueError(f"drift is for {len(drift.bias_sigma_m)} keyframes, the solve has {len(act_rows)}")
         elif cfg.drift.enabled and len(e_act):
-            drift = self.estimate_drift(act_rows, e_act, edit_c_m, edit_has_alt, held, g_nan,
-                                        fixes=calib is None or calib.model != "prior")
+            drift = self.estimate_drift(act_rows, e_act, edit_c_m, edit_has_alt, held, g_nan)
         else:
             drift = no_drift(len(act_rows))
         if calib is not None:
@@ -532,7 +461,7 @@ class Problem:
         flags = self._check_rules(index, edit_kf, c_m, deleted_kf)
         if local:
             return self.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags, local=True)
-        return self.solve_calibrated(index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags)
+        return solve_calibrated(self, index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags)
 
     def _resolve_edit_set(self, edits):
         from posefix.io.edits import EditSet, match_edits
@@ -569,7 +498,7 @@ class Problem:
                 np.array(edits.deleted, dtype=np.int64), warm_start, list(edits.flags))
         if local or drift is not None:
             return self.solve_rows(*args, local=local, drift=drift)
-        return self.solve_calibrated(*args)
+        return solve_calibrated(self, *args)
 
     def preview(self, moves: list[Edit], deleted=(), base_edits: Edits | None = None,
                 base: Solution | None = None, warm_start=None) -> Preview:
@@ -636,24 +565,6 @@ def _same_rows(sol: Solution, act_rows: np.ndarray) -> bool:
     if sol.keyframes.index is act_rows and bool(sol.active.all()):  # the default keyframes, none removed
         return True
     return bool(np.array_equal(sol.keyframes.index[sol.active], act_rows))
-
-
-def implausible_motion_m(p_enu_m: np.ndarray, q_wxyz: np.ndarray, dt_s: np.ndarray, max_speed_mps: float) -> np.ndarray:
-    """(k-1,) sideways and vertical motion between keyframes beyond what a vehicle can do, metres.
-
-    A road vehicle does not slide sideways or jump vertically faster than ``max_speed_mps``
-    (side slip and bumps stay well below 0.5 m/s).  A reported step with more body-frame
-    lateral/vertical motion than that carries a jump of the pose's error (an INS following
-    an urban-canyon GNSS offset); its relative-translation sigma grows by the excess so the
-    correction can undo the jump there rather than smear it over the whole interval.
-    0 disables the check (pedestrians, handheld devices).
-    """
-    if max_speed_mps <= 0 or len(p_enu_m) < 2:
-        return np.zeros(max(len(p_enu_m) - 1, 0))
-    R = rot.quat_to_matrix(rot.normalize_quat(q_wxyz))
-    delta = np.einsum("kji,kj->ki", R[:-1], np.diff(p_enu_m, axis=0))
-    dR = np.einsum("kji,kjl->kil", R[:-1], R[1:])
-    return T.vehicle_motion(delta, dR, dt_s, max_speed_mps)[1]  # measured half-way through the step
 
 
 def prepare(run: PoseRun, cfg: CorrectionConfig | None = None) -> Problem:

@@ -87,6 +87,7 @@ def estimate_drift(
     else:
         sigma2, tau = prior_sigma_m**2, prior_tau_s
         q = 2.0 * sigma2 / tau
+    prior = held is None and len(t_e) < max(min_edits_for_estimate, 2)
     q_jump = local_walk(t_e, d[:, :2], noise_h, q) - q
     bias = np.zeros((k, 3))
     var_h = np.zeros(k)
@@ -138,6 +139,13 @@ def estimate_drift(
     var_h = var_h + suspect
     if np.any(suspect > 0):
         detected = True
+    if prior:
+        # the stated prior (too few edits to estimate the model or confirm a step): away from the
+        # edits the run is left as without them, so the doubt about the fixes fades with the
+        # correlation to the nearest edit (otherwise sigma_b, or a step no edit can confirm, would
+        # soften every fix of the run, and one edit move all of it)
+        near = np.min(np.abs(kf_t_s[:, None] - t_e[None, :]), axis=1)
+        var_h = var_h * np.exp(-near / tau)
     loc_sigma = None
     if callable(levels) and len(all_steps.index):
         levels = levels()  # found from every sample once per run: only when the fix shows persistent steps
