@@ -214,3 +214,16 @@ def test_one_way_through_a_task(server, browser, run_id):
     sub = next(a for a in mine if a["run_id"] == run_id)
     assert sub["status"] == "submitted" and sub["comment"] == "removed the first keyframe"
     page.close()
+
+
+def test_basemap_says_when_it_has_no_tiles_at_this_zoom(server, browser, run_id):
+    page = browser.new_page()
+    login(page, server)
+    open_run(page, server, run_id)
+    page.get_by_label("Toner (topo)").check()
+    note = page.get_by_test_id("zoom-note")
+    note.filter(has_text="Toner has no tiles beyond zoom 3").wait_for(timeout=10_000)
+    page.get_by_label("Helsinki streets (street)").check()
+    # The streets source's own range is then what the note speaks of (its tiles stop at zoom 15).
+    page.wait_for_function("!document.querySelector('[data-testid=zoom-note]').textContent.includes('Toner')")
+    page.close()

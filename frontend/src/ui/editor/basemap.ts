@@ -72,3 +72,22 @@ export function initialBasemap(style: StyleSpecification, opts: BasemapOption[])
   }
   return opts[0]?.source ?? null;
 }
+
+/** What to say when `source` has no tiles at `zoom` (MapLibre enlarges the last level, or shows nothing). */
+export function zoomNote(style: StyleSpecification, opt: BasemapOption | undefined, zoom: number): string | null {
+  if (!opt) return null;
+  const src = style.sources[opt.source] as { minzoom?: number; maxzoom?: number } | undefined;
+  if (!src) return null;
+  const z = Math.floor(zoom);
+  if (src.maxzoom !== undefined && z > src.maxzoom) return `${opt.label} has no tiles beyond zoom ${src.maxzoom}: what you see is zoom ${src.maxzoom} enlarged.`;
+  if (src.minzoom !== undefined && z < src.minzoom) return `${opt.label} has no tiles below zoom ${src.minzoom}: zoom in to see it.`;
+  return null;
+}
+
+/** A map error in words: tile fetch failures become "imagery unavailable", not a raw URL. */
+export function mapErrorMessage(raw: string, label: string | null): string {
+  if (/AJAXError|Failed to fetch|NetworkError|\b(40[34]|5\d\d)\b/.test(raw)) {
+    return `Imagery unavailable${label ? ` for ${label}` : ""}: its tile server could not deliver tiles here. Editing still works; try another basemap.`;
+  }
+  return `Map: ${raw}`;
+}

@@ -16,7 +16,7 @@ import { ModeManager } from "../../modes/manager";
 import { type EditorState, correctionMagnitudes, currentEdits, displayPositions, editCount, keyframeStatuses } from "../../state/editor";
 import type { AppContext } from "../context";
 import { h } from "../dom";
-import { basemapOptions, basemapSwitcher, initialBasemap, showBasemap } from "./basemap";
+import { basemapOptions, basemapSwitcher, initialBasemap, mapErrorMessage, showBasemap, zoomNote } from "./basemap";
 import { CorrectionChart } from "./chart";
 import { ConflictPanel } from "./conflict";
 import { EditorController } from "./controller";
@@ -72,8 +72,9 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
   const mapEl = h("div", { class: "map", id: "map", "aria-label": "Map of the run; drag keyframes to correct them", role: "application", tabindex: "0" });
   const legendBox = h("div", { class: "legend-box" });
   const basemapBox = h("div", { class: "basemap-box" });
-  const mapNote = h("div", { class: "map-note", role: "status" });
-  const mapWrap = h("div", { class: "map-wrap" }, mapEl, legendBox, basemapBox, mapNote);
+  const mapNote = h("div", { class: "map-note", role: "status", "data-testid": "map-note" });
+  const zoomMsg = h("div", { class: "map-note zoom-note", role: "status", "data-testid": "zoom-note" });
+  const mapWrap = h("div", { class: "map-wrap" }, mapEl, legendBox, basemapBox, mapNote, zoomMsg);
 
   const history = new HistoryPanel(ctl, store, app.user?.role ?? null);
   const selBox = h("div");
@@ -164,13 +165,20 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     if (note) mapNote.textContent = note;
     const opts = basemapOptions(style);
     let current = initialBasemap(style, opts);
+    const label = () => opts.find((o) => o.source === current)?.label ?? null;
+    const sayZoom = () => {
+      zoomMsg.textContent = zoomNote(style, opts.find((o) => o.source === current), m.getZoom()) ?? "";
+    };
     basemapBox.replaceChildren(basemapSwitcher(opts, current, (src) => {
       current = src;
+      mapNote.textContent = note ?? "";
       if (map) showBasemap(map, opts, src);
+      sayZoom();
     }));
+    m.on("zoomend", sayZoom);
     m.on("error", (e) => {
       const msg = (e as unknown as { error?: { message?: string } }).error?.message ?? "";
-      if (msg) mapNote.textContent = `Map: ${msg}`;
+      if (msg) mapNote.textContent = mapErrorMessage(msg, label());
     });
     m.on("load", () => {
       if (!map) return;
@@ -186,6 +194,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
         openImages: (i) => openImages(i),
       });
       mapEl.dataset.ready = "true";
+      sayZoom();
       render(store.get(), null);
     });
   })();
