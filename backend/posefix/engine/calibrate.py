@@ -46,7 +46,7 @@ Data, per horizontal axis, at the edit times t_k (sorted): the pose's error at t
    (held at the edits either side; the candidate's drift re-estimated without the edit, so
    the edit cannot vouch for itself).  The calibrated model stands unless another predicts
    the same held-out edits better by more than their scatter allows (``choose``: a paired
-   gain in squared error above one standard error).  With fewer than
+   gain in squared error above one standard error, from at least eight held-out edits).  With fewer than
    ``MIN_EDITS`` edits nothing can be held out and the stated prior decides (``prior``: the
    calibrated model with the drift prior, whose bias fades from each edit over its tau of a
    minute, so one edit moves the run near it, not the whole run).
@@ -71,6 +71,7 @@ from posefix.core.drift import bias_at, smooth_gauss_markov
 
 MIN_EDITS = 3  # fewer: nothing to hold out, the prior decides
 CV_MAX_HELD_OUT = 12  # edits held out one at a time (spread evenly): enough to rank two models
+MIN_SWITCH = 8  # held-out edits needed before another model may replace the calibrated one
 SWITCH_Z = 1.0  # another model replaces the calibrated one when its paired gain on the held-out edits exceeds this many standard errors
 RW_TAU_S = 1e7  # a random walk as a Gauss-Markov process with a correlation time far beyond any run
 TAU_GRID_S = np.geomspace(10.0, 1e4, 31)
@@ -244,10 +245,12 @@ def choose(residuals: dict[str, np.ndarray]) -> str:
     The calibrated model (``gnss``: the location term with the drift model; without GNSS the
     pose and edits alone) stands unless another predicts the same held-out edits better by
     more than their scatter allows: the paired gain d_k = |r_k,inc|^2 - |r_k,other|^2 must
-    have a mean above ``SWITCH_Z`` standard errors, so a handful of edits, or one lucky
-    stretch, cannot swap models on chance.
+    have a mean above ``SWITCH_Z`` standard errors, with at least ``MIN_SWITCH`` edits held
+    out, so a handful of edits, or one lucky stretch, cannot swap models on chance.
     """
     incumbent = "gnss" if "gnss" in residuals else next(iter(residuals))
+    if len(residuals[incumbent]) < MIN_SWITCH:
+        return incumbent  # too few held out to tell models apart (six edits swapped canyon runs onto the plain model)
     e_inc = np.sum(residuals[incumbent] ** 2, axis=1)
     best, best_mse = incumbent, float(np.mean(e_inc))
     for name, r in residuals.items():
