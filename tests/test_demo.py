@@ -24,8 +24,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _settings(data_dir: Path, **extra: object) -> Settings:
+    # the TestClient's origin; the served demo allows its own host and port
     return Settings(data_dir=data_dir, database_url="", environment="development", log_json=False,
-                    operators_see_all_runs=True, **extra)
+                    operators_see_all_runs=True, public_url="http://testserver", **extra)
 
 
 def _login(client: TestClient, username: str) -> None:

@@ -7,6 +7,7 @@ cookie or bearer token), enforce CSRF rules for cookie sessions and check the ro
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable, Iterator
 from typing import Annotated, Any
@@ -17,9 +18,9 @@ from urllib.parse import urlsplit
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
 
-from posefix.config import Settings
+from posefix.config import Settings, origin_of
 from posefix.db import Database
-from posefix.errors import BadRequest, Forbidden, Unauthorized, UnsupportedMediaType
+from posefix.errors import BadRequest, Forbidden, Unauthorized, Unprocessable, UnsupportedMediaType
 from posefix.users.models import Role, TokenScope
 from posefix.users.service import Principal, resolve_session, resolve_token
 
@@ -66,13 +67,6 @@ def client_ip(request: Request) -> str:
     return request.client.host if request.client else "unknown"
 
 
-def expected_origins(request: Request, settings: Settings) -> set[str]:
-    if settings.allowed_origins:
-        return {o.rstrip("/") for o in settings.allowed_origins}
-    host = request.headers.get("host", "")
-    return {f"{request.url.scheme}://{host}", f"http://{host}", f"https://{host}"}
-
-
 def check_origin(request: Request, settings: Settings, *, required: bool) -> None:
     """CSRF: the browser's Origin (or Referer) must be ours."""
     origin = request.headers.get("origin")
@@ -85,7 +79,11 @@ def check_origin(request: Request, settings: Settings, *, required: bool) -> Non
         if required:
             raise Forbidden("missing Origin header on a cookie-authenticated request", code="csrf_failed")
         return
-    if origin.rstrip("/") not in expected_origins(request, settings):
+    allowed = settings.csrf_origins
+    if not allowed:
+        raise Forbidden("no origin is configured for browser sessions: set POSEFIX_PUBLIC_URL or "
+                        "POSEFIX_ALLOWED_ORIGINS", code="csrf_failed")
+    if origin_of(origin) not in allowed:
         raise Forbidden(f"cross-site request from origin {origin!r} refused", code="csrf_failed")
 
 
@@ -167,4 +165,50 @@ def form_text(form: Any, key: str) -> str | None:
         return None
     if not isinstance(v, str):
         raise BadRequest(f"form field {key!r} must be text", code="bad_form", extra={"field": key})
+    if "\x00" in v:
+        raise nul_refused(f"form.{key}")
     return v
+
+
+def nul_refused(field: str) -> Unprocessable:
+    message = "must not contain the NUL character (\\u0000)"
+    return Unprocessable(f"{field}: {message}", code="validation_error",
+                         extra={"fields": [{"field": field, "message": message}]})
+
+
+def _nul_path(value: Any, path: str) -> str | None:
+    """Where in a decoded JSON value a string (or key) holds NUL, as ``a.b.0``; None if nowhere."""
+    if isinstance(value, str):
+        return path if "\x00" in value else None
+    if isinstance(value, dict):
+        for key, item in value.items():
+            found = _nul_path(str(key), f"{path}.{key}") or _nul_path(item, f"{path}.{key}")
+            if found:
+                return found
+    if isinstance(value, list):
+        for i, item in enumerate(value):
+            found = _nul_path(item, f"{path}.{i}")
+            if found:
+                return found
+    return None
+
+
+async def refuse_nul(request: Request) -> None:
+    """No text in a path, query or JSON body may hold NUL: PostgreSQL cannot store it (SQLite
+    would), so refuse it the same way on both, naming the field, before any route runs."""
+    for name, value in request.path_params.items():
+        if isinstance(value, str) and "\x00" in value:
+            raise nul_refused(f"path.{name}")
+    for name, value in request.query_params.multi_items():
+        if "\x00" in name or "\x00" in value:
+            raise nul_refused(f"query.{name.replace(chr(0), '?')}")
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype == "application/json":
+        body = await request.body()
+        if b"\\u0000" in body:  # JSON can carry NUL only as this escape
+            try:
+                found = _nul_path(json.loads(body), "body")
+            except ValueError:
+                return  # not JSON: the route's own validation says so
+            if found:
+                raise nul_refused(found)

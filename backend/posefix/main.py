@@ -18,14 +18,16 @@ from pathlib import Path
 from typing import Any
 
 import anyio
-from fastapi import APIRouter, FastAPI, Request, Response
+from fastapi import APIRouter, Depends, FastAPI, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram, generate_latest
 from sqlalchemy import text
 
 from posefix.config import Settings
 from posefix.db import Database
+from posefix.deps import refuse_nul
 from posefix.errors import install_error_handlers
+from posefix.hardening import BodyTimeoutMiddleware, SecurityHeadersMiddleware
 from posefix.runs.access import register_operator_runs, register_task_runs
 from posefix.tasks.access import live_runs, runs_of_assignments, task_runs
 
@@ -161,7 +163,7 @@ def api_router() -> APIRouter:
     from posefix.tiles.endpoints import router as tiles_router
     from posefix.users.endpoints import router as users_router
 
-    router = APIRouter(prefix=API_PREFIX)
+    router = APIRouter(prefix=API_PREFIX, dependencies=[Depends(refuse_nul)])
     router.include_router(users_router)
     router.include_router(audit_router)
     router.include_router(runs_router)
@@ -216,7 +218,11 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     app.state.db = db
     app.state.metrics = Metrics()
     install_error_handlers(app)
+    # Added last is outermost: the headers reach every response, the 408 of a stalled body too.
+    app.add_middleware(BodyTimeoutMiddleware, idle_timeout_s=settings.body_idle_timeout_s,
+                       min_rate_bps=settings.body_min_rate_bps)
     app.add_middleware(RequestContextMiddleware)
+    app.add_middleware(SecurityHeadersMiddleware)
     app.include_router(ops_router())
     app.include_router(api_router())
     _mount_frontend(app)

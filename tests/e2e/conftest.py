@@ -52,10 +52,59 @@ def server(tmp_path_factory: pytest.TempPathFactory):
         yield E2EServer(srv, run_csv, images_zip)
 
 
+# Every document reports a Content-Security-Policy violation to the console, where the
+# context's listener (and Chromium's own "Refused to ..." messages) are collected.
+_REPORT_CSP_VIOLATIONS = """
+document.addEventListener("securitypolicyviolation", (e) => {
+  console.error(`Content Security Policy violation: ${e.effectiveDirective} blocked ${e.blockedURI || "inline"}`
+    + ` at ${e.sourceFile}:${e.lineNumber}`);
+});
+"""
+CSP_VIOLATIONS: list[str] = []
+
+
+def _watch_csp(ctx) -> None:
+    ctx.add_init_script(_REPORT_CSP_VIOLATIONS)
+
+    def on_console(message) -> None:
+        if "Content Security Policy" in message.text or "Content-Security-Policy" in message.text:
+            CSP_VIOLATIONS.append(f"{message.page.url if message.page else '?'}: {message.text}")
+
+    ctx.on("console", on_console)
+
+
+class CspWatchedBrowser:
+    """The Playwright browser, but every context it makes reports CSP violations."""
+
+    def __init__(self, browser):
+        self._browser = browser
+
+    def new_context(self, **kwargs):
+        ctx = self._browser.new_context(**kwargs)
+        _watch_csp(ctx)
+        return ctx
+
+    def new_page(self, **kwargs):
+        return self.new_context(**kwargs).new_page()
+
+    def __getattr__(self, name):
+        return getattr(self._browser, name)
+
+
 @pytest.fixture(scope="session")
 def browser():
     with chromium() as b:
-        yield b
+        yield CspWatchedBrowser(b)
+
+
+@pytest.fixture(autouse=True)
+def no_csp_violations():
+    """A test whose pages broke the server's Content-Security-Policy fails."""
+    CSP_VIOLATIONS.clear()
+    yield
+    found, CSP_VIOLATIONS[:] = list(CSP_VIOLATIONS), []
+    if found:
+        pytest.fail("Content-Security-Policy violations:\n" + "\n".join(found[:20]), pytrace=False)
 
 
 @pytest.fixture

@@ -21,7 +21,7 @@ def login(page, server, username: str = "op1") -> None:
 def open_run(page, server, run_id: int) -> None:
     page.goto(f"{server.base_url}/#/runs/{run_id}")
     page.wait_for_selector("#map[data-ready='true']", timeout=30_000)
-    page.wait_for_function("document.querySelector('.editor').dataset.revision !== ''", timeout=30_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.revision !== ''", timeout=30_000)
     # Wait for the map to have drawn the keyframes once (sources loaded, idle).
     page.wait_for_function(
         """() => { const m = window.__posefixMap; return m && m.getSource('pf-keyframes') && m.loaded()

@@ -19,15 +19,15 @@ def editor_data(page, key: str) -> str:
 
 
 def wait_unsaved(page, n: int) -> None:
-    page.wait_for_function(f"document.querySelector('.editor').dataset.unsaved === '{n}'", timeout=15_000)
+    page.wait_for_function(f"() => document.querySelector('.editor').dataset.unsaved === '{n}'", timeout=15_000)
 
 
 def wait_preview(page) -> None:
-    page.wait_for_function("document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)
 
 
 def wait_revision(page, n: int) -> None:
-    page.wait_for_function(f"document.querySelector('.editor').dataset.revision === '{n}'", timeout=60_000)
+    page.wait_for_function(f"() => document.querySelector('.editor').dataset.revision === '{n}'", timeout=60_000)
 
 
 def displayed(page, index: int) -> list[float]:
@@ -343,7 +343,7 @@ class TestFailuresLoseNothing:
         page.route(re.compile(r".*/api/v1/runs/\d+/edits$"), lambda route: route.abort("connectionrefused"))
         page.get_by_test_id("submit").click()
         msg = page.get_by_test_id("submit-msg")
-        page.wait_for_function("document.querySelector('[data-testid=submit-msg]').textContent.includes('Cannot reach the server')")
+        page.wait_for_function("() => document.querySelector('[data-testid=submit-msg]').textContent.includes('Cannot reach the server')")
         assert "Your edits are kept" in msg.inner_text()
         assert editor_data(page, "unsaved") == "1"
         page.unroute(re.compile(r".*/api/v1/runs/\d+/edits$"))

@@ -26,7 +26,7 @@ def test_floor_upload_replay_walk_and_see_waypoint_errors(server, context, tmp_p
     page.get_by_label("Floor plan name").fill("Mall F1")
     page.get_by_test_id("floor-file").set_input_files(str(zpath))
     page.get_by_test_id("floor-upload").click()
-    page.wait_for_function("document.querySelector('[data-testid=floor-upload-msg]').textContent.includes('built')", timeout=60_000)
+    page.wait_for_function("() => document.querySelector('[data-testid=floor-upload-msg]').textContent.includes('built')", timeout=60_000)
     row = page.get_by_test_id("floor-row").filter(has_text="Mall F1")
     assert row.get_by_test_id("floor-status").inner_text() == "ready"
     row.get_by_role("link", name="Mall F1").click()
@@ -49,7 +49,7 @@ def test_floor_upload_replay_walk_and_see_waypoint_errors(server, context, tmp_p
     page.get_by_test_id("replay-scrub").fill(str(last // 2))
     assert canvas.get_attribute("data-step") == str(last // 2)
     page.get_by_test_id("replay-play").click()
-    page.wait_for_function(f"document.querySelector('[data-testid=floor-canvas]').dataset.step === '{last}'", timeout=30_000)
+    page.wait_for_function(f"() => document.querySelector('[data-testid=floor-canvas]').dataset.step === '{last}'", timeout=30_000)
     assert canvas.get_attribute("data-waypoints-reached") == "6"
     assert "last waypoint error" in page.get_by_test_id("replay-step").inner_text()
     assert page.get_by_test_id("replay-play").inner_text().startswith("▶")
@@ -63,7 +63,7 @@ def test_editor_accept_a_suggestion_and_submit(server, context, run_id):
     open_run(page, server, run_id)
     page.get_by_test_id("suggestions").click()
     info = page.get_by_test_id("suggestions-info")
-    page.wait_for_function("/suggestion/.test(document.querySelector('[data-testid=suggestions-info]').textContent)", timeout=30_000)
+    page.wait_for_function("() => /suggestion/.test(document.querySelector('[data-testid=suggestions-info]').textContent)", timeout=30_000)
     assert "off-road" in info.inner_text()
     accept_all = page.get_by_test_id("suggestions-accept-all")
     assert accept_all.is_visible()
@@ -93,13 +93,13 @@ def test_editor_accept_a_suggestion_and_submit(server, context, run_id):
         """(c) => { const m = window.__posefixMap; const p = m.project(c); const r = m.getCanvas().getBoundingClientRect();
             return [r.left + p.x, r.top + p.y]; }""", pick[2])
     page.mouse.click(x, y)
-    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '1'", timeout=10_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.unsaved === '1'", timeout=10_000)
     assert f"keyframe {pick[0]}" in page.get_by_test_id("notices").inner_text()
-    page.wait_for_function("document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)
     shot(page, "editor-suggestions", docs=True)
 
     page.get_by_test_id("submit").click()
-    page.wait_for_function("document.querySelector('.editor').dataset.revision === '1'", timeout=60_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.revision === '1'", timeout=60_000)
     edits = server.get_json("admin", f"/api/v1/runs/{run_id}/edits")
     rows = edits["items"] if isinstance(edits, dict) else edits
     assert [(e["k"], e["kind"]) for e in rows] == [(pick[0], "suggestion")]

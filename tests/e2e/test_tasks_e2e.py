@@ -21,7 +21,7 @@ KF = 10  # an adjustable keyframe under the e2e rules (every 2nd)
 
 def wait_editor(page) -> None:
     page.wait_for_selector("#map[data-ready='true']", timeout=30_000)
-    page.wait_for_function("document.querySelector('.editor') && document.querySelector('.editor').dataset.revision !== ''", timeout=30_000)
+    page.wait_for_function("() => document.querySelector('.editor') && document.querySelector('.editor').dataset.revision !== ''", timeout=30_000)
     page.wait_for_function(
         """() => { const m = window.__posefixMap; return m && m.getSource('pf-keyframes') && m.loaded()
               && m.queryRenderedFeatures({layers: ['pf-kf-hit']}).length > 0; }""",
@@ -52,8 +52,8 @@ def operator_corrects(browser, server, username: str, run_id: int, east: float, 
     page.wait_for_function("(t) => document.querySelector('[data-testid=lease-timer]').textContent !== t", arg=first, timeout=5_000)
     zoom_to(page, KF, 18)
     drag(page, keyframe_px(page, KF), metres_px(page, KF, east, north))
-    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '1'", timeout=15_000)
-    page.wait_for_function("document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.unsaved === '1'", timeout=15_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)
     if username == "op1":
         shot(page, "task-operator", docs=True)
     page.get_by_test_id("task-submit").click()

@@ -48,8 +48,10 @@ def demo(
         typer.echo(f"  {account.role:<9} {account.username:<10} password: {account.password}")
     if not serve:
         return
+    from posefix.config import with_listen_origins
     from posefix.serving import default_http_processes, run_server
 
+    settings = with_listen_origins(settings, host, port)
     url_host = "localhost" if host in ("0.0.0.0", "127.0.0.1", "::") else host
     processes = default_http_processes()
     typer.echo("")

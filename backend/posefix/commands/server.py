@@ -59,8 +59,11 @@ def users_create(
         password = sys.stdin.readline().rstrip("\r\n")
     else:
         password = typer.prompt("password", hide_input=True, confirmation_prompt=True)
-    if len(password) < 8:
-        typer.echo("error: the password must have at least 8 characters", err=True)
+    from posefix.users.passwords import password_problem
+
+    problem = password_problem(password, username, role_value)
+    if problem is not None:
+        typer.echo(f"error: {problem}", err=True)
         raise typer.Exit(2)
     settings = Settings()
     db = Database(settings.resolved_database_url)
@@ -91,11 +94,15 @@ def serve(
 ) -> None:
     """Serve the API and the front end (and, on SQLite, the job worker)."""
     single_threaded_blas()  # concurrent small solves: BLAS threads would only spin against each other
-    from posefix.config import Settings
+    from posefix.config import Settings, with_listen_origins
     from posefix.db import upgrade_database
     from posefix.serving import default_http_processes, run_server
 
-    settings = Settings()
+    settings = with_listen_origins(Settings(), host, port)
+    if not settings.csrf_origins:
+        typer.echo("error: set POSEFIX_PUBLIC_URL (or POSEFIX_ALLOWED_ORIGINS), the address browsers use; "
+                   "browser sessions are refused without it", err=True)
+        raise typer.Exit(2)
     if migrate:
         upgrade_database(settings.resolved_database_url)
     embedded = settings.is_sqlite and settings.embedded_worker if embedded_worker is None else embedded_worker

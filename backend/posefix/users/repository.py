@@ -70,27 +70,22 @@ def touch_token(session: Session, token_id: int, now: dt.datetime) -> None:
     session.execute(update(ApiToken).where(ApiToken.id == token_id).values(last_used_at=now))
 
 
-def recent_failures(
-    session: Session, username: str, client_ip: str, since: dt.datetime
-) -> tuple[int, int, dt.datetime | None]:
-    """Failures in the window for this username and this address, and the oldest of them."""
-    by_user = select(func.count(), func.min(LoginFailure.at)).where(
-        LoginFailure.username == username, LoginFailure.at >= since
-    )
-    by_ip = select(func.count(), func.min(LoginFailure.at)).where(
-        LoginFailure.client_ip == client_ip, LoginFailure.at >= since
-    )
-    n_user, oldest_user = session.execute(by_user).one()
-    n_ip, oldest_ip = session.execute(by_ip).one()
-    oldest = min((t for t in (oldest_user, oldest_ip) if t is not None), default=None)
-    if oldest is not None and oldest.tzinfo is None:
-        oldest = oldest.replace(tzinfo=dt.UTC)
-    return int(n_user), int(n_ip), oldest
+def failures_since(session: Session, since: dt.datetime, *, client_ip: str,
+                   username: str | None = None) -> tuple[int, dt.datetime | None]:
+    """Failed logins from this address (for this username, when given) since ``since``:
+    how many, and when the latest was."""
+    where = [LoginFailure.client_ip == client_ip, LoginFailure.at >= since]
+    if username is not None:
+        where.append(LoginFailure.username == username)
+    n, latest = session.execute(select(func.count(), func.max(LoginFailure.at)).where(*where)).one()
+    if latest is not None and latest.tzinfo is None:
+        latest = latest.replace(tzinfo=dt.UTC)
+    return int(n), latest
 
 
 def add_failure(session: Session, username: str, client_ip: str) -> None:
     session.add(LoginFailure(username=username[:64], client_ip=client_ip[:64], at=utcnow()))
 
 
-def clear_failures(session: Session, username: str) -> None:
-    session.query(LoginFailure).filter(LoginFailure.username == username).delete()
+def clear_failures(session: Session, username: str, client_ip: str) -> None:
+    session.query(LoginFailure).filter(LoginFailure.username == username, LoginFailure.client_ip == client_ip).delete()

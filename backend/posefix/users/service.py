@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime as dt
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,9 +11,11 @@ from sqlalchemy.orm import Session
 
 from posefix.config import Settings
 from posefix.db import Database, utcnow
-from posefix.errors import Conflict, Forbidden, NotFound, TooManyRequests, Unauthorized
+from posefix.errors import Conflict, Forbidden, NotFound, Unauthorized, Unprocessable
 from posefix.security import hash_password, hash_secret, new_api_token, new_session_id, verify_password
 from posefix.users import repository as repo
+from posefix.users.passwords import password_problem
+from posefix.users.throttle import check_throttle
 from posefix.users.models import ApiToken, AuthSession, Role, TokenScope, User
 
 # Update a session's last-seen time at most this often (seconds), to spare writes.
@@ -36,7 +37,15 @@ class Principal:
         return self.role in roles
 
 
+def check_password(password: str, username: str, role: Role) -> None:
+    """Refuse a password the policy (``posefix.users.passwords``) does not accept, with 422."""
+    problem = password_problem(password, username, role)
+    if problem is not None:
+        raise Unprocessable(problem, code="weak_password", extra={"field": "password"})
+
+
 def create_user(session: Session, username: str, password: str, role: Role) -> User:
+    check_password(password, username, role)
     if repo.get_user_by_username(session, username) is not None:
         raise Conflict(f"user {username!r} already exists", code="user_exists")
     user = User(username=username, password_hash=hash_password(password), role=role.value, disabled=False)
@@ -57,6 +66,8 @@ def update_user(
         raise NotFound(f"user {user_id} not found")
     if user.id == actor.user_id and (disabled or (role is not None and role != Role.admin)):
         raise Conflict("admins cannot disable or demote themselves", code="self_demotion")
+    if password is not None:
+        check_password(password, user.username, role or Role(user.role))
     if role is not None:
         user.role = role.value
     if password is not None:
@@ -68,23 +79,6 @@ def update_user(
             repo.revoke_user_sessions(session, user.id)
     session.flush()
     return user
-
-
-def check_throttle(db: Database, settings: Settings, username: str, client_ip: str) -> None:
-    now = utcnow()
-    since = now - dt.timedelta(seconds=settings.login_window_s)
-    with db.transaction(write=False) as s:
-        n_user, n_ip, oldest = repo.recent_failures(s, username, client_ip, since)
-    # An address may try several accounts (shared NAT), a username only a few times.
-    if n_user >= settings.login_max_failures or n_ip >= 4 * settings.login_max_failures:
-        retry = settings.login_window_s
-        if oldest is not None:
-            retry = max(1, math.ceil((oldest + dt.timedelta(seconds=settings.login_window_s) - now).total_seconds()))
-        raise TooManyRequests(
-            f"too many failed logins; try again in {retry} s",
-            code="login_throttled",
-            headers={"Retry-After": str(retry)},
-        )
 
 
 def login(
@@ -112,7 +106,7 @@ def login(
                     client_ip=client_ip[:64], user_agent=(user_agent or "")[:255],
                 ),
             )
-            repo.clear_failures(session, username)
+            repo.clear_failures(session, username, client_ip[:64])
     if user is None:
         raise Unauthorized("wrong username or password", code="invalid_credentials")
     return user, sid
