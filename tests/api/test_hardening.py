@@ -171,8 +171,9 @@ class TestCsrfOrigin:
     def test_development_defaults_to_the_local_server(self, monkeypatch: pytest.MonkeyPatch) -> None:
         from posefix.config import Settings, with_listen_origins
 
-        monkeypatch.delenv("POSEFIX_ALLOWED_ORIGINS", raising=False)
-        monkeypatch.delenv("POSEFIX_PUBLIC_URL", raising=False)
+        for key in ("POSEFIX_ALLOWED_ORIGINS", "POSEFIX_PUBLIC_URL"):
+            monkeypatch.setenv(key, "")  # recorded, so with_listen_origins' own setting is undone too
+            monkeypatch.delenv(key)
         dev = Settings(environment="development")
         configured = Settings(environment="development", public_url="https://me.example")
         assert dev.csrf_origins == {"http://localhost:8000", "http://127.0.0.1:8000", "http://[::1]:8000"}
@@ -197,7 +198,8 @@ class TestCsrfOrigin:
         finally:
             app.state.db.dispose()
         for key in ("POSEFIX_ALLOWED_ORIGINS", "POSEFIX_PUBLIC_URL"):
-            monkeypatch.delenv(key, raising=False)
+            monkeypatch.setenv(key, "")
+            monkeypatch.delenv(key)
         monkeypatch.setenv("POSEFIX_ENVIRONMENT", "production")
         monkeypatch.setenv("POSEFIX_SECRET_KEY", "s" * 48)
         monkeypatch.setenv("POSEFIX_DATA_DIR", str(tmp_path))
