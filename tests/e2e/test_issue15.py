@@ -15,7 +15,7 @@ pytestmark = pytest.mark.e2e
 
 
 def wait_revision(page, n: int) -> None:
-    page.wait_for_function(f"document.querySelector('.editor').dataset.revision === '{n}'", timeout=60_000)
+    page.wait_for_function(f"() => document.querySelector('.editor').dataset.revision === '{n}'", timeout=60_000)
 
 
 def api_move(server, username: str, run_id: int, index: int, east_m: float, comment: str, base: int = 0) -> None:

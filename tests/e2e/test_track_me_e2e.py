@@ -106,11 +106,11 @@ def server_mean_error(server, floor_id: int, walk, start, tmp_path: Path) -> flo
 
 def track_on_page(page, events) -> list[dict]:
     page.get_by_test_id("track-me").click()
-    page.wait_for_function("document.querySelector('[data-testid=live-msg]').textContent.includes('Waiting for the motion sensors')",
+    page.wait_for_function("() => document.querySelector('[data-testid=live-msg]').textContent.includes('Waiting for the motion sensors')",
                            timeout=30_000)
     page.evaluate(FEED, events)
     page.get_by_test_id("track-stop").click()
-    page.wait_for_function("document.querySelector('[data-testid=live-msg]').textContent.startsWith('Stopped')")
+    page.wait_for_function("() => document.querySelector('[data-testid=live-msg]').textContent.startsWith('Stopped')")
     return page.evaluate("window.__posefixLiveTrack")
 
 
@@ -138,18 +138,18 @@ def test_track_me_from_sensor_events_with_no_server_request_and_offline(server, 
         page.get_by_test_id("track-start").fill(f"{x0},{y0}")  # the exact point, as the server gets it
 
         # The page downloads the model, and its service worker keeps the page and the model.
-        page.wait_for_function(f"caches.match('/api/v1/floorplans/{floor_id}/model').then((r) => !!r)", timeout=30_000)
-        page.wait_for_function("caches.match('/').then((r) => !!r)", timeout=30_000)
+        page.wait_for_function(f"() => caches.match('/api/v1/floorplans/{floor_id}/model').then((r) => !!r)", timeout=30_000)
+        page.wait_for_function("() => caches.match('/').then((r) => !!r)", timeout=30_000)
         events = sensor_events(walk)
         requests: list[str] = []
         ctx.on("request", lambda r: requests.append(r.url))
         page.get_by_test_id("track-me").click()
-        page.wait_for_function("document.querySelector('[data-testid=live-msg]').textContent.includes('Waiting for the motion sensors')",
+        page.wait_for_function("() => document.querySelector('[data-testid=live-msg]').textContent.includes('Waiting for the motion sensors')",
                                timeout=30_000)
         after_model = len(requests)
         page.evaluate(FEED, events)
         page.get_by_test_id("track-stop").click()
-        page.wait_for_function("document.querySelector('[data-testid=live-msg]').textContent.startsWith('Stopped')")
+        page.wait_for_function("() => document.querySelector('[data-testid=live-msg]').textContent.startsWith('Stopped')")
         assert model_requests, "the model was never downloaded"
         assert requests[after_model:] == [], "the page asked the server while tracking"
         track = page.evaluate("window.__posefixLiveTrack")
@@ -186,7 +186,7 @@ def test_track_me_without_a_start_shows_the_modes(server, browser, floor_id):
         page.wait_for_selector("canvas[data-image='loaded']", timeout=15_000)
         events = sensor_events(walk)
         page.get_by_test_id("track-me").click()
-        page.wait_for_function("document.querySelector('[data-testid=live-msg]').textContent.includes('Waiting for the motion sensors')",
+        page.wait_for_function("() => document.querySelector('[data-testid=live-msg]').textContent.includes('Waiting for the motion sensors')",
                                timeout=30_000)
         page.evaluate(FEED, events[: len(events) // 3])
         msg = page.get_by_test_id("live-msg")
