@@ -97,7 +97,7 @@ def test_delete_range_is_between_the_two_clicks_and_asks_first(server, browser, 
     page.mouse.click(*keyframe_px(page, 20))
     page.mouse.click(*keyframe_px(page, 24))
     page.get_by_test_id("range-yes").click()
-    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '5'")
+    page.wait_for_function("() => document.querySelector('.editor').dataset.unsaved === '5'")
     assert [status_of(page, i) for i in (19, 20, 24, 25, 30)] == ["fixed", "deleted", "deleted", "fixed", "adjustable"]
     page.close()
 

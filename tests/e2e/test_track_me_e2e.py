@@ -215,7 +215,7 @@ def test_replay_tracks_the_walk_file_in_the_browser_beside_the_server(server, co
 
     page.get_by_test_id("walk-server").click()
     line = page.get_by_test_id("server-error-mean")
-    page.wait_for_function("document.querySelector('[data-testid=server-error-mean]').textContent.includes('Server (smoothed')",
+    page.wait_for_function("() => document.querySelector('[data-testid=server-error-mean]').textContent.includes('Server (smoothed')",
                            timeout=30_000)
     c = server.srv.client("op1")
     try:
