@@ -172,7 +172,7 @@ def _free_port() -> int:
 
 
 def _wait_ready(url: str, proc: subprocess.Popen, log: Path) -> None:
-    deadline = time.time() + 90
+    deadline = time.time() + 180  # two HTTP processes and a worker importing everything on a loaded 2-core machine
     while time.time() < deadline:
         if proc.poll() is not None:
             raise RuntimeError(f"posefix serve exited with {proc.returncode}:\n{log.read_text()[-3000:]}")
@@ -182,7 +182,7 @@ def _wait_ready(url: str, proc: subprocess.Popen, log: Path) -> None:
         except httpx.HTTPError:
             pass
         time.sleep(0.2)
-    raise RuntimeError(f"posefix serve not ready after 90 s:\n{log.read_text()[-3000:]}")
+    raise RuntimeError(f"posefix serve not ready after 180 s:\n{log.read_text()[-3000:]}")
 
 
 @contextlib.contextmanager
