@@ -199,17 +199,17 @@ def test_one_way_through_a_task(server, browser, run_id):
     page.goto(server.base_url + "/#/tasks/work")
     page.get_by_test_id("next-task").click()
     page.wait_for_selector("#map[data-ready='true']", timeout=30_000)
-    page.wait_for_function("document.querySelector('.editor').dataset.revision !== ''", timeout=30_000)
+    page.wait_for_function("() => document.querySelector('.editor').dataset.revision !== ''", timeout=30_000)
     assert page.locator("button:has-text('Submit')").count() == 1
     assert page.locator("input[aria-label*='omment']").count() == 1
     page.locator("#map").focus()
     page.keyboard.press(".")
     page.keyboard.press("Delete")
-    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '1'")
+    page.wait_for_function("() => document.querySelector('.editor').dataset.unsaved === '1'")
     page.get_by_label("Comment for the reviewer").fill("removed the first keyframe")
     page.get_by_test_id("task-submit").click()
     page.get_by_test_id("offer-next").wait_for(timeout=15_000)
-    page.wait_for_function("document.querySelector('.editor').dataset.unsaved === '0'")
+    page.wait_for_function("() => document.querySelector('.editor').dataset.unsaved === '0'")
     mine = server.get_json("op2", "/api/v1/assignments/mine")
     sub = next(a for a in mine if a["run_id"] == run_id)
     assert sub["status"] == "submitted" and sub["comment"] == "removed the first keyframe"
@@ -225,5 +225,5 @@ def test_basemap_says_when_it_has_no_tiles_at_this_zoom(server, browser, run_id)
     note.filter(has_text="Toner has no tiles beyond zoom 3").wait_for(timeout=10_000)
     page.get_by_label("Helsinki streets (street)").check()
     # The streets source's own range is then what the note speaks of (its tiles stop at zoom 15).
-    page.wait_for_function("!document.querySelector('[data-testid=zoom-note]').textContent.includes('Toner')")
+    page.wait_for_function("() => !document.querySelector('[data-testid=zoom-note]').textContent.includes('Toner')")
     page.close()
