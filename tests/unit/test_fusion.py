@@ -1,0 +1,88 @@
+"""Operator-weighted fusion: the EM recovers known operator accuracies from shared runs
+alone, the fused position beats the best operator, an adversary cannot move it, and the
+chi-square test flags what the accuracies do not explain (and little else)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from posefix.tasks import fusion
+
+SIGMAS = np.array([0.5, 1.0, 2.0, 2.0, 4.0, 8.0])
+
+
+def _crowd(rng: np.random.Generator, n_runs: int, per_run: int, k: int, sigmas: np.ndarray,
+           offsets: dict[int, float] | None = None) -> tuple[list[fusion.RunObs], list[np.ndarray]]:
+    runs, truths = [], []
+    for _ in range(n_runs):
+        ops = rng.choice(len(sigmas), per_run, replace=False)
+        t = rng.uniform(-500, 500, (k, 2))
+        x = t[None] + rng.normal(size=(per_run, k, 2)) * sigmas[ops][:, None, None]
+        for j, o in enumerate(ops):
+            if offsets and o in offsets:
+                ang = rng.uniform(0, 2 * np.pi)
+                x[j] = t + offsets[o] * np.array([np.cos(ang), np.sin(ang)])
+        runs.append(fusion.RunObs(x, np.ones((per_run, k), bool), ops, np.ones(per_run, bool)))
+        truths.append(t)
+    return runs, truths
+
+
+def test_em_recovers_operator_accuracies_from_shared_runs_alone() -> None:
+    rng = np.random.default_rng(3)
+    runs, _ = _crowd(rng, 40, 3, 40, SIGMAS)
+    none = np.full(len(SIGMAS), np.nan)
+    est = fusion.estimate(runs, none, np.zeros(len(SIGMAS)))
+    ratio = est.sigma_m / SIGMAS
+    assert np.all(np.abs(ratio - 1) < 0.2), ratio
+    assert list(np.argsort(est.sigma_m)[[0, 1]]) == [0, 1]
+
+
+def test_weighted_fusion_beats_the_best_operator_and_the_geometric_median() -> None:
+    rng = np.random.default_rng(5)
+    k = 2000
+    t = np.zeros((k, 2))
+    s = np.array([0.5, 1.0, 2.0])
+    x = t[None] + rng.normal(size=(3, k, 2)) * s[:, None, None]
+    f = fusion.fuse(x, np.ones((3, k), bool), s)
+    rmse = float(np.sqrt(np.mean(np.sum(f.t_m ** 2, axis=1))))
+    best = float(np.sqrt(np.mean(np.sum(x[0] ** 2, axis=1))))
+    gm = fusion.geometric_median(x)
+    gm_rmse = float(np.sqrt(np.mean(np.sum(gm ** 2, axis=1))))
+    assert rmse < 0.95 * best < gm_rmse
+    # inverse-variance theory: 1/sqrt(4 + 1 + 0.25) = 0.436 m per axis; reported per keyframe
+    assert abs(float(np.median(f.sigma_m)) - 0.436) < 0.05
+    assert abs(rmse / np.sqrt(2) - 0.436) < 0.05
+
+
+def test_an_adversary_cannot_move_the_consensus_nor_hide_from_the_test() -> None:
+    rng = np.random.default_rng(7)
+    sig = np.array([0.5, 1.0, 2.0, 2.0, 4.0, 8.0, 1.0])   # the last one is adversarial, 30 m off
+    runs, truths = _crowd(rng, 30, 3, 40, sig, offsets={6: 30.0})
+    est = fusion.estimate(runs, np.full(len(sig), np.nan), np.zeros(len(sig)))
+    assert est.sigma_m[6] > 10 * est.sigma_m[1]
+    for run, t, f in zip(runs, truths, est.fused):
+        if 6 in run.op:
+            assert np.max(np.linalg.norm(f.t_m - t, axis=1)) < 12.0
+            # measured elsewhere the adversary looks like a 1 m operator: the test catches it
+            test = fusion.chi2_test(run.x_m, run.valid, est.sigma_m[run.op], np.where(run.op == 6, 1.0, sig[run.op]))
+            assert test.p[list(run.op).index(6)] < 1e-6
+
+
+def test_flags_are_rare_when_operators_are_as_accurate_as_measured() -> None:
+    rng = np.random.default_rng(11)
+    runs, _ = _crowd(rng, 200, 3, 30, SIGMAS[:4])
+    flagged = 0
+    for run in runs:
+        test = fusion.chi2_test(run.x_m, run.valid, SIGMAS[run.op], SIGMAS[run.op])
+        flagged += int(np.any(test.p < 1e-3))
+    assert flagged / len(runs) < 0.02
+
+
+def test_gold_prior_fixes_scales_that_two_operators_alone_cannot() -> None:
+    rng = np.random.default_rng(13)
+    t = np.zeros((50, 2))
+    x = t[None] + rng.normal(size=(2, 50, 2)) * np.array([0.5, 4.0])[:, None, None]
+    run = fusion.RunObs(x, np.ones((2, 50), bool), np.array([0, 1]), np.ones(2, bool))
+    est = fusion.estimate([run], np.array([0.5, np.nan]), np.array([fusion.GOLD_POSITIONS, 0.0]))
+    assert est.sigma_m[0] < 0.8 and est.sigma_m[1] > 2.5
+    assert np.sqrt(np.mean(np.sum(est.fused[0].t_m ** 2, axis=1))) < 0.9
