@@ -1,6 +1,6 @@
 """A run's consensus once every wanted submission is in and evaluated: the consensus track,
 the conflicts between submissions, and the task's conflict policy (extra assignment, or
-agreed / conflict); numerics in ``posefix.tasks.consensus``."""
+agreed / conflict); numerics in ``posefix.tasks.fusion`` and ``posefix.tasks.consensus``."""
 
 from __future__ import annotations
 
@@ -11,11 +11,13 @@ from typing import Any
 import numpy as np
 from sqlalchemy.orm import Session
 
+from posefix.core import geodesy
 from posefix.tasks import consensus
 from posefix.tasks import repository as repo
 from posefix.tasks.merge import maybe_merge, merged_edits
 from posefix.tasks.models import Assignment, AssignmentStatus, Task, TaskRun, TaskRunStatus, TaskStatus
-from posefix.tasks.states import local_m, move_task, run_origin, slot, to_lonlat
+from posefix.tasks.states import local_m, move_task, slot, to_lonlat
+from posefix.tasks.weighing import weigh
 
 Reoptimise = Callable[[dict[str, Any]], np.ndarray]  # edit set -> (k, 2) lon, lat solved by the engine
 
@@ -35,6 +37,7 @@ def update_consensus(session: Session, task_run_id: int, now: dt.datetime, reopt
     tr.consensus, tr.disagreement_m, tr.conflicts = result["consensus"], result["disagreement_m"], result["conflicts"]
     for a, err in zip(done, result["consensus_error_m"]):
         a.consensus_error_m = err
+    _hold(session, task, tr, [a for a in done if a.id in set(result["held"])], now)
     before = tr.status
     if result["blocking"] and task.conflict_policy == "extend" and tr.extra_added < task.max_extra_assignments \
             and task.status in repo.ACTIVE_TASK + (TaskStatus.reviewable,):
@@ -59,32 +62,64 @@ def update_consensus(session: Session, task_run_id: int, now: dt.datetime, reopt
     maybe_merge(session, tr, now, actor_id=None)
 
 
+def _hold(session: Session, task: Task, tr: TaskRun, off: list[Assignment], now: dt.datetime) -> None:
+    """Work off the consensus waits for a reviewer: no auto-approval."""
+    for a in off:
+        if a.status == AssignmentStatus.submitted and a.auto_approve_at is not None:
+            a.auto_approve_at = None
+            repo.record(session, task_id=task.id, entity="assignment", assignment_id=a.id, task_run_id=tr.id,
+                        from_status=a.status, to_status=a.status, at=now, reason="held for review",
+                        detail={"why": "off the weighted consensus by more than the operator's accuracy explains"})
+
+
 def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assignment],
                       reoptimise: Reoptimise | None = None) -> dict[str, Any]:
-    """The consensus track and the conflicts between the submissions' corrected tracks.
+    """The consensus track, the submissions off it, and whether the run is in conflict.
 
-    Consensus: the geometric median per keyframe of the corrected positions; with
-    ``reoptimise`` (the engine, in the worker), the medians at the keyframes anyone moved
-    (and the majority's deletions, as the merge would submit them) are re-optimised by the
-    engine into one consistent track."""
-    origin = run_origin(session, tr.run_id)
-    pos = np.array([a.corrected for a in done], dtype=float)            # (m, k, 2) lon, lat
-    x_m = local_m(pos[..., 0], pos[..., 1], origin)                      # (m, k, 2) metres
-    valid = np.ones(x_m.shape[:2], dtype=bool)
-    for i, a in enumerate(done):
-        for d in (a.edit_set or {}).get("deleted", []):
-            if 0 <= int(d) < valid.shape[1]:
-                valid[i, int(d)] = False
-    median_m = consensus.geometric_median(x_m, valid)
-    # a keyframe every operator deleted has no median: keep the first track there (it is removed anyway)
-    median_m = np.where(np.isnan(median_m), x_m[0], median_m)
+    Consensus: the operator-weighted robust fusion per keyframe (``weighing``; the geometric
+    median while nothing is known of the operators); with ``reoptimise`` (the engine, in the
+    worker), the fused positions at the keyframes anyone moved (and the majority's deletions,
+    as the merge would submit them) are re-optimised by the engine into one consistent track.
+
+    Off the consensus: a submission its operator's measured accuracy does not explain
+    (chi-square, ``weighing.ALPHA``); it is held for a reviewer. The run is in conflict when
+    half or more of its submissions are off (no majority to trust). With nothing known, the
+    task's fixed distances decide, as the only evidence there is."""
+    wg = weigh(session, tr, done)
+    x_m, valid, origin = wg.x_m, wg.valid, wg.origin
+    fused_m = np.where(np.isnan(wg.fused.t_m), x_m[0], wg.fused.t_m)  # a keyframe all deleted: removed anyway
     if reoptimise is not None:
-        moves, deleted, _ = merged_edits(session, tr, done)
+        moves, deleted, _ = merged_edits(session, tr, done, wg=wg)
         solved = np.asarray(reoptimise({"moves": [[m.index, m.lon, m.lat, m.alt] for m in moves], "deleted": deleted, "flags": []}))
         lon, lat = solved[:, 0], solved[:, 1]
-        median_m = local_m(lon, lat, origin)
+        fused_m = local_m(lon, lat, origin)
     else:
-        lon, lat = to_lonlat(median_m, origin)
+        lon, lat = to_lonlat(fused_m, origin)
+    ids = [a.id for a in done]
+    if wg.test is None:
+        conflicts, blocking = _fixed_conflicts(task, done, x_m, valid, fused_m, origin)
+        held: list[int] = []
+    else:
+        off = np.flatnonzero(wg.flagged)
+        conflicts = [{"kind": "off_consensus", "a": ids[i], "keyframes": len(wg.moved),
+                      "distance_m": round(float(wg.test.distance_m[i]), 3), "expected_m": round(float(wg.test.expected_m[i]), 3),
+                      "statistic": round(float(wg.test.statistic[i]), 1), "dof": int(wg.test.dof[i]),
+                      "p": float(wg.test.p[i])} for i in off]
+        blocking = 2 * len(off) >= len(done)
+        held = [ids[i] for i in off]
+    err = np.linalg.norm(x_m - fused_m[None], axis=2)                   # (m, k)
+    consensus_error = [float(err[i][valid[i]].mean()) if valid[i].any() else 0.0 for i in range(len(done))]
+    return {
+        "consensus": np.round(np.column_stack([lon, lat]), 8).tolist(),
+        "disagreement_m": np.round(consensus.disagreement_m(x_m, valid), 3).tolist(),
+        "conflicts": conflicts, "consensus_error_m": consensus_error, "blocking": blocking, "held": held,
+        "method": wg.method,
+    }
+
+
+def _fixed_conflicts(task: Task, done: list[Assignment], x_m: np.ndarray, valid: np.ndarray, centre_m: np.ndarray,
+                     origin: geodesy.EnuOrigin) -> tuple[list[dict[str, Any]], bool]:
+    """Tracks and moves further apart than the task's fixed distances (nothing known of the operators)."""
     tracks = consensus.track_conflicts(x_m, task.conflict_distance_m, task.conflict_keyframes, valid)
     moves_m = []
     for a in done:
@@ -98,21 +133,14 @@ def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assi
             moves_m.append({})
     edits = consensus.edit_conflicts(moves_m, task.conflict_edit_m)
     ids = [a.id for a in done]
-    conflicts = [
-        {**c.to_json(), "a": ids[c.a], "b": ids[c.b]} for c in tracks
-    ] + [{**c.to_json(), "a": ids[c.a], "b": ids[c.b]} for c in edits]
-    err = np.linalg.norm(x_m - median_m[None], axis=2)                   # (m, k)
-    consensus_error = [float(err[i][valid[i]].mean()) if valid[i].any() else 0.0 for i in range(len(done))]
+    conflicts = [{**c.to_json(), "a": ids[c.a], "b": ids[c.b]} for c in tracks] + [
+        {**c.to_json(), "a": ids[c.a], "b": ids[c.b]} for c in edits]
     blocking = bool(conflicts)
     if blocking and len(done) >= 3:
         # plurality: the consensus stands when most tracks agree with it
-        outliers = consensus.track_conflicts(np.concatenate([median_m[None], x_m]), task.conflict_distance_m,
+        outliers = consensus.track_conflicts(np.concatenate([centre_m[None], x_m]), task.conflict_distance_m,
                                              task.conflict_keyframes,
                                              np.concatenate([np.ones((1, valid.shape[1]), bool), valid]))
         away = {c.b - 1 for c in outliers if c.a == 0}
         blocking = len(away) * 2 >= len(done)
-    return {
-        "consensus": np.round(np.column_stack([lon, lat]), 8).tolist(),
-        "disagreement_m": np.round(consensus.disagreement_m(x_m, valid), 3).tolist(),
-        "conflicts": conflicts, "consensus_error_m": consensus_error, "blocking": blocking,
-    }
+    return conflicts, blocking

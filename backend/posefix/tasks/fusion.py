@@ -206,17 +206,18 @@ class ChiTest:
 
 
 def chi2_test(x_m: np.ndarray, valid: np.ndarray, sigma_fit_m: np.ndarray, sigma_ref_m: np.ndarray,
-              *, nu: float = NU) -> ChiTest:
-    """Each submission against the robust fusion of the others (weights ``sigma_fit_m``),
-    scaled by its operator's accuracy measured elsewhere (``sigma_ref_m``)."""
+              *, contributes: np.ndarray | None = None, nu: float = NU) -> ChiTest:
+    """Each submission against the robust fusion of the others that ``contributes`` (weights
+    ``sigma_fit_m``), scaled by its operator's accuracy measured elsewhere (``sigma_ref_m``)."""
     x = np.asarray(x_m, dtype=float)
     v = np.asarray(valid, dtype=bool)
     m = len(x)
     stat, dof, p = np.zeros(m), np.zeros(m), np.ones(m)
     dist, expect = np.full(m, np.nan), np.full(m, np.nan)
     s_ref = np.maximum(np.asarray(sigma_ref_m, dtype=float), SIGMA_FLOOR_M)
+    pull = np.ones(m, dtype=bool) if contributes is None else np.asarray(contributes, dtype=bool)
     for i in range(m):
-        others = np.arange(m) != i
+        others = (np.arange(m) != i) & pull
         if not others.any():
             continue
         f = fuse(x[others], v[others], np.asarray(sigma_fit_m, dtype=float)[others], nu=nu)

@@ -34,11 +34,14 @@ def next_assignment(session: Session, principal: Principal, now: dt.datetime) ->
     area_tasks: list[Task] = []
     ineligible: list[dict[str, Any]] = []
     wants_test = False
+    to_measure: list[Task] = []
     for task in candidates:
         reasons = qual.check_requirements(task.requirements, facts)
         if reasons:
             if qual.needs_test(task.requirements) and facts.test_status == "not_taken":
                 wants_test = True
+            if qual.waits_for_accuracy(task.requirements, facts):
+                to_measure.append(task)
             ineligible.append({"task_id": task.id, "title": task.title, "reasons": reasons})
             continue
         if active >= task.max_active_leases:
@@ -61,6 +64,11 @@ def next_assignment(session: Session, principal: Principal, now: dt.datetime) ->
                     ineligible.append({"task_id": t.id, "title": t.title,
                                        "reasons": ["none of this task's open runs lies within your home area"]})
     deadlines = {t.id: now + dt.timedelta(seconds=t.lease_s) for t in candidates}
+    if to_measure and active == 0 and not repo.gold_pending(session, uid):
+        gold = _lease_qualifying_gold(session, uid, now, to_measure, deadlines)
+        if gold is not None:
+            return {"assignment": gold, "message": "first, a gold run that measures your accuracy: correct it as well as you can",
+                    "ineligible": ineligible}
     if wants_test and active == 0:
         test = _lease_test(session, uid, now)
         if test is not None:
@@ -86,6 +94,27 @@ def next_assignment(session: Session, principal: Principal, now: dt.datetime) ->
     if task.status == TaskStatus.assignable:
         move_task(session, task, TaskStatus.in_progress, now, actor_id=uid, reason="first lease", skip_locked=True)
     return {"assignment": assignment_public(session, a, now), "message": "leased", "ineligible": ineligible}
+
+
+def _lease_qualifying_gold(session: Session, uid: int, now: dt.datetime, tasks: list[Task],
+                           deadlines: dict[int, dt.datetime]) -> AssignmentPublic | None:
+    """A gold run of one of ``tasks`` (which need a measured accuracy), else a test gold run:
+    scoring it measures the operator, so an accuracy requirement can be met on a fresh team."""
+    runs = repo.open_gold_task_runs(session, [t.id for t in tasks])
+    got = repo.lease_one(session, uid, now, task_ids=[], task_run_ids=runs, deadlines=deadlines, active=0) if runs else None
+    if got is None:
+        return _lease_test(session, uid, now)
+    aid, tid = got
+    a = repo.get_assignment(session, aid)
+    assert a is not None
+    repo.record(session, task_id=tid, entity="assignment", assignment_id=aid, task_run_id=a.task_run_id,
+                from_status=AssignmentStatus.open, to_status=AssignmentStatus.accepted, actor_id=uid, at=now,
+                reason="leased to measure accuracy")
+    task = session.get(Task, tid)
+    assert task is not None
+    if task.status == TaskStatus.assignable:
+        move_task(session, task, TaskStatus.in_progress, now, actor_id=uid, reason="first lease", skip_locked=True)
+    return assignment_public(session, a, now)
 
 
 def _lease_test(session: Session, uid: int, now: dt.datetime) -> AssignmentPublic | None:

@@ -4,7 +4,7 @@ A requirement is ``{"qualification", "comparator", "value"}`` as on Mechanical T
 
 - ``approved_count`` — experience: approved assignments (numeric comparators);
 - ``accuracy_m`` — mean horizontal error on gold runs, metres (numeric comparators; an
-  operator never measured does not meet it);
+  operator never measured does not meet it, and is served a gold run to be measured on);
 - ``home_area`` with ``contains`` — the run lies in the operator's home area (checked per run);
 - ``qualification_test`` with ``passed`` — the operator passed the qualification test;
 - any other name — an admin-granted qualification (numeric comparators, ``exists``,
@@ -218,6 +218,14 @@ def check_requirements(requirements: list[dict[str, Any]], facts: OperatorFacts)
 
 def needs_home_area(requirements: list[dict[str, Any]]) -> bool:
     return any(r.get("qualification") == "home_area" for r in requirements)
+
+
+def waits_for_accuracy(requirements: list[dict[str, Any]], facts: OperatorFacts) -> bool:
+    """The operator's accuracy was never measured and is all this task still waits for (a
+    scored gold run would settle it)."""
+    if facts.accuracy_m is not None or not any(r.get("qualification") == "accuracy_m" for r in requirements):
+        return False
+    return not check_requirements([r for r in requirements if r.get("qualification") != "accuracy_m"], facts)
 
 
 def needs_test(requirements: list[dict[str, Any]]) -> bool:

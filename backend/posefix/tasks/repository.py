@@ -249,10 +249,11 @@ def expired_leases(session: Session, at: dt.datetime, limit: int = 500) -> list[
 
 
 def due_for_auto_approval(session: Session, at: dt.datetime, limit: int = 500) -> list[Assignment]:
+    """Due work on runs whose consensus is in and agreed (work held for review has no due time)."""
     stmt = (
         select(Assignment).join(TaskRun, TaskRun.id == Assignment.task_run_id)
         .where(Assignment.status == AssignmentStatus.submitted, Assignment.auto_approve_at <= at,
-               Assignment.evaluated_at.is_not(None), TaskRun.status != TaskRunStatus.conflict)
+               Assignment.evaluated_at.is_not(None), TaskRun.status == TaskRunStatus.agreed)
         .order_by(Assignment.id).limit(limit)
     )
     return list(session.scalars(stmt))
@@ -341,6 +342,46 @@ def gold_accuracy(session: Session, user_id: int) -> tuple[float | None, int]:
     row = session.execute(select(func.avg(Assignment.gold_error_m), func.count(Assignment.gold_error_m)).where(
         Assignment.operator_id == user_id)).one()
     return (None if row[0] is None else float(row[0])), int(row[1])
+
+
+def gold_accuracies(session: Session, user_ids: list[int]) -> dict[int, tuple[float, int]]:
+    """Per operator with any gold score: (mean gold error in metres, gold runs scored)."""
+    stmt = (select(Assignment.operator_id, func.avg(Assignment.gold_error_m), func.count(Assignment.gold_error_m))
+            .where(Assignment.operator_id.in_(user_ids), Assignment.gold_error_m.is_not(None))
+            .group_by(Assignment.operator_id))
+    return {int(u): (float(a), int(n)) for u, a, n in session.execute(stmt)}
+
+
+def evaluated_by_run(session: Session, task_id: int, max_runs: int) -> dict[int, list[Assignment]]:
+    """The evaluated submissions (submitted, approved or rejected) of the task's most recent
+    ``max_runs`` runs that have at least two, by task run."""
+    done = (AssignmentStatus.submitted, AssignmentStatus.approved, AssignmentStatus.rejected)
+    shared = (select(Assignment.task_run_id).where(Assignment.task_id == task_id, Assignment.status.in_(done),
+                                                   Assignment.evaluated_at.is_not(None))
+              .group_by(Assignment.task_run_id).having(func.count() >= 2)
+              .order_by(Assignment.task_run_id.desc()).limit(max_runs))
+    trids = list(session.scalars(shared))
+    out: dict[int, list[Assignment]] = {t: [] for t in sorted(trids)}
+    if trids:
+        stmt = select(Assignment).where(Assignment.task_run_id.in_(trids), Assignment.status.in_(done),
+                                        Assignment.evaluated_at.is_not(None)).order_by(Assignment.id)
+        for a in session.scalars(stmt):
+            out[a.task_run_id].append(a)
+    return out
+
+
+def open_gold_task_runs(session: Session, task_ids: list[int]) -> list[int]:
+    stmt = select(TaskRun.id).where(TaskRun.task_id.in_(task_ids), TaskRun.is_gold.is_(True), TaskRun.status == TaskRunStatus.open)
+    return list(session.scalars(stmt))
+
+
+def gold_pending(session: Session, user_id: int) -> bool:
+    """Does the operator hold, or wait for the score of, work on a gold run?"""
+    stmt = (select(Assignment.id).join(TaskRun, TaskRun.id == Assignment.task_run_id)
+            .where(Assignment.operator_id == user_id, TaskRun.is_gold.is_(True), Assignment.gold_error_m.is_(None),
+                   Assignment.status.in_((AssignmentStatus.accepted, AssignmentStatus.submitted, AssignmentStatus.approved)))
+            .limit(1))
+    return session.scalar(stmt) is not None
 
 
 def test_assignments(session: Session, user_id: int) -> list[Assignment]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime as dt
 
+import numpy as np
 from sqlalchemy.orm import Session
 
 from posefix.errors import Conflict, Forbidden, NotFound
@@ -14,6 +15,7 @@ from posefix.tasks.merge import maybe_merge
 from posefix.tasks.models import Assignment, AssignmentStatus, TaskRun, TaskRunStatus
 from posefix.tasks.schemas import ReviewView, SubmissionView
 from posefix.tasks.states import move_assignment, replace_slot
+from posefix.tasks.weighing import Weighing, weigh
 from posefix.users.service import Principal
 
 REVIEWABLE = (AssignmentStatus.submitted, AssignmentStatus.approved, AssignmentStatus.rejected)
@@ -26,18 +28,47 @@ def review_view(session: Session, task_run_id: int) -> ReviewView:
     reported = [[c[3], c[4]] for c in runs_repo.keyframe_columns(session, tr.run_id)]
     rows = [a for a in repo.run_assignments(session, tr.id) if a.status in REVIEWABLE]
     names = repo.usernames(session, [a.operator_id for a in rows if a.operator_id])
-    subs = [
-        SubmissionView(
-            assignment_id=a.id, operator_id=a.operator_id, operator=names.get(a.operator_id or 0), status=AssignmentStatus(a.status),
-            submitted_at=a.submitted_at, comment=a.comment,
-            moves=[m for m in (a.edit_set or {}).get("moves", []) if int(m[0]) in set((a.edit_set or {}).get("own_moves", []))],
-            deleted=(a.edit_set or {}).get("deleted", []), positions=a.corrected, consensus_error_m=a.consensus_error_m,
-        )
-        for a in rows
-    ]
+    subs = {a.id: _submission(a, names) for a in rows}
+    evaluated = [a for a in rows if a.evaluated_at is not None and a.corrected]
+    method, sigma = None, None
+    if len(evaluated) >= 2:
+        wg = weigh(session, tr, evaluated)
+        method = wg.method
+        sigma = [None if np.isnan(s) else round(float(s), 3) for s in wg.fused.sigma_m]
+        share = wg.weight_share
+        dist = wg.test.distance_m if wg.test is not None else _distance(wg)
+        for i, aid in enumerate(wg.ids):
+            v = subs[aid]
+            v.accuracy_m, v.gold_scored = wg.accuracy_m[i], wg.gold_scored[i]
+            v.distance_m = None if np.isnan(dist[i]) else round(float(dist[i]), 3)
+            v.weight = round(float(share[i]), 4)
+            if wg.test is not None:
+                v.sigma_m = round(float(wg.sigma_m[i]), 3)
+                v.expected_m = None if np.isnan(wg.test.expected_m[i]) else round(float(wg.test.expected_m[i]), 3)
+                v.off_consensus = bool(wg.flagged[i])
+    ranked = sorted(subs.values(), key=lambda v: (v.distance_m is None, v.distance_m or 0.0, v.assignment_id))
+    for r, v in enumerate(ranked, 1):
+        v.rank = r if v.distance_m is not None else None
     return ReviewView(task_run_id=tr.id, task_id=tr.task_id, run_id=tr.run_id, status=tr.status, reported=reported,
-                      consensus=tr.consensus, disagreement_m=tr.disagreement_m, conflicts=tr.conflicts, submissions=subs,
-                      merged_revision=tr.merged_revision)
+                      consensus=tr.consensus, disagreement_m=tr.disagreement_m, conflicts=tr.conflicts, submissions=ranked,
+                      merged_revision=tr.merged_revision, method=method, consensus_sigma_m=sigma, merge_detail=tr.merge_detail)
+
+
+def _submission(a: Assignment, names: dict[int, str]) -> SubmissionView:
+    es = a.edit_set or {}
+    own = set(es.get("own_moves", []))
+    return SubmissionView(
+        assignment_id=a.id, operator_id=a.operator_id, operator=names.get(a.operator_id or 0), status=AssignmentStatus(a.status),
+        submitted_at=a.submitted_at, comment=a.comment, moves=[m for m in es.get("moves", []) if int(m[0]) in own],
+        deleted=es.get("deleted", []), positions=a.corrected, consensus_error_m=a.consensus_error_m,
+    )
+
+
+def _distance(wg: Weighing) -> np.ndarray:
+    """Mean distance of each track to the (unweighted) consensus at the moved keyframes."""
+    k = wg.moved or list(range(wg.x_m.shape[1]))
+    d = np.linalg.norm(wg.x_m[:, k] - wg.fused.t_m[None, k], axis=2)
+    return np.array([float(np.mean(d[i][wg.valid[i, k]])) if wg.valid[i, k].any() else np.nan for i in range(len(wg.ids))])
 
 
 def review(session: Session, principal: Principal, assignment_id: int, decision: str, feedback: str | None,

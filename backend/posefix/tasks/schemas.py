@@ -192,6 +192,14 @@ class SubmissionView(BaseModel):
     deleted: list[int]
     positions: list[list[float]] | None = Field(description="[lon, lat] per keyframe of the corrected track")
     consensus_error_m: float | None
+    rank: int | None = Field(default=None, description="1 = closest to the weighted consensus")
+    distance_m: float | None = Field(default=None, description="mean distance to the weighted consensus of the others, moved keyframes")
+    expected_m: float | None = Field(default=None, description="the mean distance the operator's measured accuracy explains")
+    accuracy_m: float | None = Field(default=None, description="the operator's mean error on gold runs (None: never measured)")
+    gold_scored: int = 0
+    sigma_m: float | None = Field(default=None, description="the operator's accuracy (per axis) from gold runs and shared runs")
+    weight: float | None = Field(default=None, description="share of the weighted consensus")
+    off_consensus: bool = Field(default=False, description="further off than the operator's accuracy explains: held for review")
 
 
 class ReviewView(BaseModel):
@@ -203,8 +211,11 @@ class ReviewView(BaseModel):
     consensus: list[list[float]] | None
     disagreement_m: list[float] | None = Field(description="per keyframe, the largest distance between two operators")
     conflicts: list[dict[str, Any]] | None
-    submissions: list[SubmissionView]
+    submissions: list[SubmissionView] = Field(description="ranked: closest to the weighted consensus first")
     merged_revision: int | None
+    method: str | None = Field(default=None, description="weighted, or geometric_median while nothing is known of the operators")
+    consensus_sigma_m: list[float | None] | None = Field(default=None, description="per keyframe, the weighted consensus' standard deviation (per axis)")
+    merge_detail: dict[str, Any] | None = None
 
 
 class ReviewQueueItem(BaseModel):

@@ -1,0 +1,135 @@
+"""Weighing a run's submissions by what is known of their operators: gold-run accuracy, and
+agreement with others on the task's shared runs (``posefix.tasks.fusion`` does the numbers).
+
+One ``Weighing`` serves the consensus (which submissions are off it, held from
+auto-approval), the merge (the fused positions, and whether the merge is safe) and the
+review screen (rank, weight, measured accuracy beside distance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from posefix.core import geodesy
+from posefix.tasks import fusion
+from posefix.tasks import repository as repo
+from posefix.tasks.consensus import geometric_median
+from posefix.tasks.models import Assignment, AssignmentStatus, TaskRun
+from posefix.tasks.states import local_m, run_origin
+
+# A submission is off the consensus when its operator's measured accuracy explains its
+# distance with probability below this (chi-square upper tail over its moved keyframes).
+ALPHA = 1e-3
+POOL_RUNS = 50  # the task's most recent shared runs the EM learns from
+
+
+@dataclass
+class Weighing:
+    """ids (m,) assignment ids; x_m (m, k, 2) metres; valid (m, k); moved: keyframes anyone
+    moved; sigma_m (m,) each operator's accuracy (per-axis, all evidence); sigma_ref_m (m,)
+    measured elsewhere (None: never measured); accuracy_m / gold_scored from gold runs;
+    fused over all keyframes; test on the moved keyframes; method "weighted" or
+    "geometric_median" (nothing known yet)."""
+
+    ids: list[int]
+    origin: geodesy.EnuOrigin
+    x_m: np.ndarray
+    valid: np.ndarray
+    moved: list[int]
+    sigma_m: np.ndarray
+    sigma_ref_m: np.ndarray
+    measured: np.ndarray
+    accuracy_m: list[float | None]
+    gold_scored: list[int]
+    fused: fusion.Fused
+    test: fusion.ChiTest | None
+    method: str
+
+    @property
+    def flagged(self) -> np.ndarray:
+        if self.test is None:
+            return np.zeros(len(self.ids), dtype=bool)
+        return self.test.p < ALPHA
+
+    @property
+    def weight_share(self) -> np.ndarray:
+        """(m,) each submission's share of the fused estimate over the moved keyframes."""
+        w = self.fused.w[:, self.moved].sum(axis=1) if self.moved else self.fused.w.sum(axis=1)
+        total = w.sum()
+        return w / total if total > 0 else np.full(len(self.ids), 1.0 / max(len(self.ids), 1))
+
+
+def positions_m(subs: list[Assignment], origin: geodesy.EnuOrigin) -> tuple[np.ndarray, np.ndarray]:
+    """(m, k, 2) corrected positions in metres and (m, k) valid (False where deleted)."""
+    pos = np.array([a.corrected for a in subs], dtype=float)
+    x_m = local_m(pos[..., 0], pos[..., 1], origin)
+    valid = np.ones(x_m.shape[:2], dtype=bool)
+    for i, a in enumerate(subs):
+        for d in (a.edit_set or {}).get("deleted", []):
+            if 0 <= int(d) < valid.shape[1]:
+                valid[i, int(d)] = False
+    return x_m, valid
+
+
+def moved_keyframes(subs: list[Assignment]) -> list[int]:
+    return sorted({int(m) for a in subs for m in (a.edit_set or {}).get("own_moves", [])})
+
+
+def _obs(session: Session, subs: list[Assignment], op_index: dict[int, int], contributors: set[int],
+         origin: geodesy.EnuOrigin | None = None) -> fusion.RunObs | None:
+    moved = moved_keyframes(subs)
+    if len(subs) < 2 or not moved:
+        return None
+    origin = origin or run_origin(session, subs[0].run_id)
+    x_m, valid = positions_m(subs, origin)
+    return fusion.RunObs(x_m[:, moved], valid[:, moved], np.array([op_index[a.operator_id or 0] for a in subs]),
+                         np.array([a.id in contributors for a in subs]))
+
+
+def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: set[int] | None = None) -> Weighing:
+    """Weigh ``subs`` (evaluated submissions of ``tr``); only ``contributors`` (default: all
+    not rejected) pull the fused positions."""
+    contributors = contributors if contributors is not None else {
+        a.id for a in subs if a.status != AssignmentStatus.rejected}
+    origin = run_origin(session, tr.run_id)
+    x_m, valid = positions_m(subs, origin)
+    moved = moved_keyframes(subs)
+    pool = [rows for trid, rows in repo.evaluated_by_run(session, tr.task_id, POOL_RUNS).items() if trid != tr.id]
+    users = sorted({a.operator_id or 0 for a in subs} | {a.operator_id or 0 for rows in pool for a in rows})
+    op_index = {u: j for j, u in enumerate(users)}
+    gold = repo.gold_accuracies(session, users)
+    prior_s = np.array([fusion.sigma_from_mean_error(gold[u][0]) if u in gold else np.nan for u in users])
+    prior_n = np.array([fusion.GOLD_POSITIONS * gold[u][1] if u in gold else 0.0 for u in users])
+    others = [o for rows in pool if (o := _obs(session, rows, op_index, {a.id for a in rows
+                                                                       if a.status != AssignmentStatus.rejected}))]
+    here = _obs(session, subs, op_index, contributors, origin)
+    ops = np.array([op_index[a.operator_id or 0] for a in subs])
+    truth = np.array([a.id in contributors for a in subs])
+    # measured elsewhere: gold runs and the task's other shared runs, never this run itself
+    seen_elsewhere = np.zeros(len(users), dtype=bool)
+    for o in others:
+        seen_elsewhere[o.op] = True
+    measured_ops = ~np.isnan(prior_s) | seen_elsewhere
+    known = measured_ops[ops].any() or (here is not None and len(subs) >= 3)
+    if not known or here is None:
+        t = geometric_median(x_m, valid & truth[:, None])
+        fused = fusion.Fused(t, np.full(len(t), np.nan), np.where(valid & truth[:, None], 1.0, 0.0), np.zeros(len(t)))
+        return Weighing([a.id for a in subs], origin, x_m, valid, moved, np.full(len(subs), np.nan),
+                        np.full(len(subs), np.nan), measured_ops[ops], [gold.get(a.operator_id or 0, (None, 0))[0] for a in subs],
+                        [gold.get(a.operator_id or 0, (None, 0))[1] for a in subs], fused, None, "geometric_median")
+    full = fusion.estimate(others + [here], prior_s, prior_n)
+    s_ref = np.full(len(users), np.nan)
+    if others or not np.all(np.isnan(prior_s)):
+        s_ref = fusion.estimate(others, prior_s, prior_n).sigma_m if others else prior_s.copy()
+        s_ref = np.where(measured_ops, s_ref, np.nan)
+    ref = s_ref[ops]
+    # never measured: expected to be as good as the median operator of this run
+    ref = np.where(np.isnan(ref), float(np.median(full.sigma_m[ops])), ref)
+    fused = fusion.fuse(x_m, valid & truth[:, None], full.sigma_m[ops])
+    test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, contributes=truth)
+    return Weighing([a.id for a in subs], origin, x_m, valid, moved, full.sigma_m[ops], ref, measured_ops[ops],
+                    [gold.get(a.operator_id or 0, (None, 0))[0] for a in subs],
+                    [gold.get(a.operator_id or 0, (None, 0))[1] for a in subs], fused, test, "weighted")
