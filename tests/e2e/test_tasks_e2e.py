@@ -129,3 +129,65 @@ def test_admin_two_operators_conflict_review_merge(server, browser, context):
     card.get_by_test_id("task-status").filter(has_text="done").wait_for(timeout=15_000)
     shot(admin, "task-admin", docs=True)
     rev_context.close()
+
+
+def test_review_screen_ranks_by_the_weighted_consensus_with_measured_accuracies(server, browser, context):
+    """Three operators on a gold run (0.5, 1.5 and 20 m off the truth): the review screen lists
+    them closest to the weighted consensus first, each with its measured accuracy and weight."""
+    import numpy as np
+
+    from posefix.io import read_run
+
+    run_id = server.upload_run("weighted review drive")
+    for user, role in (("op3", "operator"), ("rev1", "reviewer")):
+        try:
+            server.srv.cli("users", "create", "--username", user, "--role", role, "--password-stdin", stdin=PASSWORD + "\n")
+        except Exception:  # noqa: BLE001 - the user exists when the session's server is reused
+            pass
+    truth_csv = server.run_csv.parent / "truth.csv"
+    admin = server.srv.client("admin")
+    with truth_csv.open("rb") as fh:
+        admin.post("/api/v1/gold-runs", data={"run_id": str(run_id)}, files={"truth": ("truth.csv", fh, "text/csv")}).raise_for_status()
+    task = admin.post("/api/v1/tasks", json={"title": "weighted review", "run_ids": [run_id], "assignments_per_run": 3,
+                                             "lease_s": 600, "lifetime_s": 3600, "auto_approval_delay_s": 3600,
+                                             "conflict_policy": "flag"})
+    task.raise_for_status()
+    task_id = task.json()["id"]
+    truth = read_run(truth_csv)
+    feats = admin.get(f"/api/v1/runs/{run_id}/keyframes").json()["features"]
+    ks = list(range(0, len(feats), 4))
+    t = np.array([feats[k]["properties"]["t"] for k in ks])
+    lon, lat = np.interp(t, truth.t_s, truth.lon_deg), np.interp(t, truth.t_s, truth.lat_deg)
+    aids = {}
+    for user, off_m in (("op1", 0.5), ("op2", 20.0), ("op3", 1.5)):
+        c = server.srv.client(user)
+        a = c.post("/api/v1/tasks/next").json()["assignment"]
+        moves = [{"index": k, "lon": float(lo) + off_m / (111_320 * math.cos(math.radians(la))), "lat": float(la)}
+                 for k, lo, la in zip(ks, lon, lat)]
+        c.post(f"/api/v1/assignments/{a['id']}/submit", json={"moves": moves}).raise_for_status()
+        aids[user] = a["id"]
+        c.close()
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        tr = server.get_json("admin", f"/api/v1/tasks/{task_id}")["runs"][0]
+        if tr["status"] != "open":
+            break
+        time.sleep(0.5)
+    assert tr["status"] in ("agreed", "conflict")
+    view = server.get_json("rev1", f"/api/v1/task-runs/{tr['id']}/review")
+    assert [s["operator"] for s in view["submissions"]][-1] == "op2" and view["method"] == "weighted"
+    measured = {s["operator"]: s["accuracy_m"] for s in view["submissions"]}
+    assert measured["op1"] < measured["op3"] < measured["op2"]
+
+    rev = context.new_page()
+    login(rev, server, "rev1")
+    rev.goto(server.base_url + f"/#/tasks/review/{tr['id']}")
+    rev.wait_for_selector(".review-map[data-ready='true']", timeout=30_000)
+    order = rev.locator("article.submission").evaluate_all("els => els.map(e => e.dataset.testid)")
+    assert order[-1] == f"submission-{aids['op2']}"
+    for s in view["submissions"]:
+        line = rev.get_by_test_id(f"weighing-{s['assignment_id']}").inner_text()
+        assert line.startswith(f"#{s['rank']} · {s['distance_m']:.2f} m from the weighted consensus")
+        assert f"accuracy {s['accuracy_m']:.2f} m on 1 gold run(s)" in line and f"weight {round(s['weight'] * 100)} %" in line
+    shot(rev, "task-review-weighted")
+    admin.close()

@@ -117,7 +117,8 @@ def _vertex_medians(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarra
         eta = np.where(on, w, 0.0).sum(axis=0)
         inv = np.where(on, 0.0, w / np.maximum(dist, 1e-300))
         r = np.linalg.norm(np.einsum("ik,ikd->kd", inv, diff), axis=1)
-        ok = (w[p] > 0) & (r < eta) & ~found  # strict: an even split (two points) keeps the midpoint
+        # strict, with room for rounding: an even split (two points, r = eta) keeps the midpoint
+        ok = (w[p] > 0) & (r < eta * (1.0 - 1e-9)) & ~found
         vertex[ok] = x[p][ok]
         found |= ok
     return vertex, found

@@ -86,12 +86,13 @@ def merged_edits(session: Session, tr: TaskRun, subs: list[Assignment], contribu
                             "sigma_m": None if not len(sig) or np.all(np.isnan(sig)) else round(float(np.nanmedian(sig)), 3)}
 
 
-def merge_safe(session: Session, tr: TaskRun, subs: list[Assignment], moves: list[MoveIn], wg: Weighing) -> str | None:
+def merge_safe(session: Session, tr: TaskRun, moves: list[MoveIn], wg: Weighing) -> str | None:
     """None when the merge may go ahead, else why not: the merged positions are further than
-    the run's input from every trusted operator's track (measured accuracy, not off the
-    consensus) at the keyframes it moves, so the evidence says the merge makes the run worse."""
-    trusted = [i for i in range(len(wg.ids)) if wg.measured[i] and not wg.flagged[i]
-               and subs[i].status != AssignmentStatus.rejected]
+    the run's input from every trusted operator's track at the keyframes it moves, so the
+    evidence says the merge makes the run worse. Trusted: an operator whose accuracy was
+    measured against the truth on gold runs, whatever this run's review made of their work
+    (the case to catch is a reviewer backing a bad majority)."""
+    trusted = [i for i in range(len(wg.ids)) if wg.accuracy_m[i] is not None]
     if not moves or not trusted:
         return None
     k = [m.index for m in moves]
@@ -177,7 +178,7 @@ def merge_task_run(session: Session, settings: Settings, task_run_id: int, actor
             and a.evaluated_at is not None]
     wg = weigh(session, tr, subs, {a.id for a in approved}) if len(approved) > 1 else None
     moves, deleted, detail = merged_edits(session, tr, subs, {a.id for a in approved}, wg=wg)
-    why = merge_safe(session, tr, subs, moves, wg) if wg is not None else None
+    why = merge_safe(session, tr, moves, wg) if wg is not None else None
     if why is not None:
         return _stop(session, task, tr, why, detail, actor_id, now)
     moves, deleted, dropped = drop_refused(session, settings, run, moves, deleted)

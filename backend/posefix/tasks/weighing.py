@@ -24,6 +24,7 @@ from posefix.tasks.states import local_m, run_origin
 # distance with probability below this (chi-square upper tail over its moved keyframes).
 ALPHA = 1e-3
 POOL_RUNS = 50  # the task's most recent shared runs the EM learns from
+MIN_POSITIONS = 20  # shared-run positions that make an operator's agreement a measurement
 
 
 @dataclass
@@ -63,8 +64,16 @@ class Weighing:
 
 
 def positions_m(subs: list[Assignment], origin: geodesy.EnuOrigin) -> tuple[np.ndarray, np.ndarray]:
-    """(m, k, 2) corrected positions in metres and (m, k) valid (False where deleted)."""
+    """(m, k, 2) positions in metres and (m, k) valid (False where deleted): where an operator
+    placed a keyframe, the place they chose (the engine's solve pulls it back towards the
+    input, and the merge solves again); elsewhere their corrected track."""
     pos = np.array([a.corrected for a in subs], dtype=float)
+    for i, a in enumerate(subs):
+        es = a.edit_set or {}
+        own = {int(k) for k in es.get("own_moves", [])}
+        for m in es.get("moves", []):
+            if int(m[0]) in own and 0 <= int(m[0]) < pos.shape[1]:
+                pos[i, int(m[0])] = (m[1], m[2])
     x_m = local_m(pos[..., 0], pos[..., 1], origin)
     valid = np.ones(x_m.shape[:2], dtype=bool)
     for i, a in enumerate(subs):
@@ -121,10 +130,14 @@ def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: s
                         np.full(len(subs), np.nan), measured_ops[ops], [gold.get(a.operator_id or 0, (None, 0))[0] for a in subs],
                         [gold.get(a.operator_id or 0, (None, 0))[1] for a in subs], fused, None, "geometric_median")
     full = fusion.estimate(others + [here], prior_s, prior_n)
-    s_ref = np.full(len(users), np.nan)
-    if others or not np.all(np.isnan(prior_s)):
-        s_ref = fusion.estimate(others, prior_s, prior_n).sigma_m if others else prior_s.copy()
-        s_ref = np.where(measured_ops, s_ref, np.nan)
+    # the reference scale: agreement on the task's other runs (the clicks' own scale) where there
+    # is enough of it, else gold runs (a gold run scores the engine's smoothed track, so it
+    # reads an operator somewhat better than their clicks)
+    s_ref = np.where(np.isnan(prior_s), np.nan, prior_s)
+    if others:
+        agree = fusion.estimate(others, np.full(len(users), np.nan), np.zeros(len(users)))
+        enough = agree.n_positions >= MIN_POSITIONS
+        s_ref = np.where(enough, agree.sigma_m, s_ref)
     ref = s_ref[ops]
     # never measured: expected to be as good as the median operator of this run
     ref = np.where(np.isnan(ref), float(np.median(full.sigma_m[ops])), ref)

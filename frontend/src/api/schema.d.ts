@@ -1947,12 +1947,26 @@ export interface components {
             /** Consensus */
             consensus: number[][] | null;
             /**
+             * Consensus Sigma M
+             * @description per keyframe, the weighted consensus' standard deviation (per axis)
+             */
+            consensus_sigma_m?: (number | null)[] | null;
+            /**
              * Disagreement M
              * @description per keyframe, the largest distance between two operators
              */
             disagreement_m: number[] | null;
+            /** Merge Detail */
+            merge_detail?: {
+                [key: string]: unknown;
+            } | null;
             /** Merged Revision */
             merged_revision: number | null;
+            /**
+             * Method
+             * @description weighted, or geometric_median while nothing is known of the operators
+             */
+            method?: string | null;
             /**
              * Reported
              * @description [lon, lat] per keyframe as reported
@@ -1961,7 +1975,10 @@ export interface components {
             /** Run Id */
             run_id: number;
             status: components["schemas"]["TaskRunStatus"];
-            /** Submissions */
+            /**
+             * Submissions
+             * @description ranked: closest to the weighted consensus first
+             */
             submissions: components["schemas"]["SubmissionView"][];
             /** Task Id */
             task_id: number;
@@ -2321,6 +2338,11 @@ export interface components {
         };
         /** SubmissionView */
         SubmissionView: {
+            /**
+             * Accuracy M
+             * @description the operator's mean error on gold runs (None: never measured)
+             */
+            accuracy_m?: number | null;
             /** Assignment Id */
             assignment_id: number;
             /** Comment */
@@ -2329,8 +2351,29 @@ export interface components {
             consensus_error_m: number | null;
             /** Deleted */
             deleted: number[];
+            /**
+             * Distance M
+             * @description mean distance to the weighted consensus of the others, moved keyframes
+             */
+            distance_m?: number | null;
+            /**
+             * Expected M
+             * @description the mean distance the operator's measured accuracy explains
+             */
+            expected_m?: number | null;
+            /**
+             * Gold Scored
+             * @default 0
+             */
+            gold_scored?: number;
             /** Moves */
             moves: unknown[][];
+            /**
+             * Off Consensus
+             * @description further off than the operator's accuracy explains: held for review
+             * @default false
+             */
+            off_consensus?: boolean;
             /** Operator */
             operator: string | null;
             /** Operator Id */
@@ -2340,9 +2383,24 @@ export interface components {
              * @description [lon, lat] per keyframe of the corrected track
              */
             positions: number[][] | null;
+            /**
+             * Rank
+             * @description 1 = closest to the weighted consensus
+             */
+            rank?: number | null;
+            /**
+             * Sigma M
+             * @description the operator's accuracy (per axis) from gold runs and shared runs
+             */
+            sigma_m?: number | null;
             status: components["schemas"]["AssignmentStatus"];
             /** Submitted At */
             submitted_at: string | null;
+            /**
+             * Weight
+             * @description share of the weighted consensus
+             */
+            weight?: number | null;
         };
         /** SubmitIn */
         SubmitIn: {

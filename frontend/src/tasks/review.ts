@@ -184,7 +184,9 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
       v.merged_revision !== null ? h("p", { "data-testid": "review-merged" }, `Merged as revision ${v.merged_revision}.`) : null,
       v.conflicts?.length
         ? h("ul", { class: "conflicts", "data-testid": "conflicts" }, ...v.conflicts.map((c) => h("li", {},
-            c.kind === "edits_apart"
+            c.kind === "off_consensus"
+              ? `Assignment ${c.a} is ${Number(c.distance_m).toFixed(1)} m from the weighted consensus of the others; its operator's accuracy explains ${Number(c.expected_m).toFixed(1)} m`
+            : c.kind === "edits_apart"
               ? `Keyframe ${c.index} moved ${Number(c.distance_m).toFixed(1)} m apart by assignments ${c.a} and ${c.b}`
               : `Tracks of assignments ${c.a} and ${c.b} are up to ${Number(c.max_separation_m).toFixed(1)} m apart over keyframes ${c.first}–${c.last}`)))
         : h("p", { class: "muted" }, "No conflict."),
@@ -212,6 +214,7 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
             h("span", { class: `status status-${s.status}` }, s.status)),
           h("p", { class: "muted" }, `${s.moves.length} move${s.moves.length === 1 ? "" : "s"}, ${s.deleted.length} deleted · ${fmtTime(s.submitted_at)}`,
             s.consensus_error_m !== null ? ` · ${s.consensus_error_m.toFixed(2)} m from consensus` : ""),
+          weighing(s),
           s.comment ? h("p", {}, `“${s.comment}”`) : null,
           s.status === "submitted"
             ? h("div", { class: "decide" }, fb,
@@ -225,6 +228,17 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
     ));
     focusCard();
     await drawMap(v);
+  }
+
+  /** Rank, weight in the consensus, and the operator's measured accuracy beside their distance. */
+  function weighing(s: ReviewView["submissions"][number]) {
+    if (s.rank === null) return null;
+    const acc = s.accuracy_m !== null ? `accuracy ${s.accuracy_m.toFixed(2)} m on ${s.gold_scored} gold run(s)` : "accuracy not measured";
+    return h("p", { class: "weighing", "data-testid": `weighing-${s.assignment_id}` },
+      `#${s.rank} · ${s.distance_m !== null ? `${s.distance_m.toFixed(2)} m from the weighted consensus` : ""}`,
+      s.expected_m !== null ? ` (accuracy explains ${s.expected_m.toFixed(2)} m)` : "",
+      ` · ${acc}`, s.weight !== null ? ` · weight ${Math.round(s.weight * 100)} %` : "",
+      s.off_consensus ? h("strong", { class: "off", "data-testid": `off-${s.assignment_id}` }, " · off the consensus: held for review") : null);
   }
 
   async function drawMap(v: ReviewView) {

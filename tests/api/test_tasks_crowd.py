@@ -1,0 +1,110 @@
+"""The crowd's evidence at work through the API: an operator never measured is served a
+gold run before an accuracy requirement is checked; a submission off the weighted consensus
+waits for a reviewer; a merge the trusted operator says is worse than the input is stopped."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from tests.api.tasks_support import Env, csv_bytes, env, task_body, truth_move  # noqa: F401
+
+ACCURACY = [{"qualification": "accuracy_m", "comparator": "le", "value": 1.5}]
+
+
+def _gold(env: Env, tmp_path: Path, run_id: int, **form: str) -> None:
+    data = csv_bytes(env.sims[run_id].truth, tmp_path, f"truth-{run_id}.csv")
+    r = env.client("admin").post("/api/v1/gold-runs", data={"run_id": str(run_id), **form},
+                                 files={"truth": ("truth.csv", data, "text/csv")})
+    assert r.status_code == 201, r.text
+
+
+def _next(env: Env, who: str) -> dict[str, Any]:
+    r = env.client(who).post("/api/v1/tasks/next")
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def _submit(env: Env, who: str, a: dict[str, Any], east_m: float, north_m: float = 0.0, every: int = 3) -> None:
+    n = len(env.keyframes(a["run_id"]))
+    moves = [truth_move(env, a["run_id"], k, error_east_m=east_m, error_north_m=north_m) for k in range(0, n, every)]
+    r = env.client(who).post(f"/api/v1/assignments/{a['id']}/submit", json={"moves": moves})
+    assert r.status_code == 200, r.text
+
+
+def test_an_unmeasured_operator_is_served_a_gold_run_first(env: Env, tmp_path: Path) -> None:
+    own_gold = env.import_run("drive-own-gold", seed=31)
+    test_gold = env.import_run("drive-test-gold", seed=32)
+    work = env.import_run("drive-work", seed=33)
+    _gold(env, tmp_path, own_gold)
+    _gold(env, tmp_path, test_gold, is_test="true", pass_error_m="100")
+    for who in ("first", "second", "sloppy"):
+        env.add_user(who, "operator")
+    task = env.client("admin").post("/api/v1/tasks", json=task_body([work, own_gold], assignments_per_run=2,
+                                                                      requirements=ACCURACY)).json()
+    # the task's own gold run while it has slots, then the test gold run
+    served = {}
+    for who, east in (("first", 0.0), ("second", 0.0), ("sloppy", 15.0)):
+        out = _next(env, who)
+        assert out["message"].startswith("first, a gold run that measures your accuracy"), out
+        served[who] = out["assignment"]["run_id"]
+        assert _next(env, who)["assignment"] is None  # one lease at a time, and no second gold run while one is held
+        _submit(env, who, out["assignment"], east)
+    assert served == {"first": own_gold, "second": own_gold, "sloppy": test_gold}
+    env.drain()
+    stats = {s["username"]: s for s in env.client("admin").get("/api/v1/operators").json()}
+    assert stats["first"]["accuracy_m"] < 1.5 and stats["second"]["accuracy_m"] < 1.5 and stats["sloppy"]["accuracy_m"] > 10
+    # measured: now the requirement decides
+    assert _next(env, "second")["assignment"]["run_id"] == work
+    out = _next(env, "sloppy")
+    assert out["assignment"] is None
+    assert out["ineligible"][0]["task_id"] == task["id"]
+    assert out["ineligible"][0]["reasons"][0].startswith("needs an accuracy of at most 1.5 m on gold runs; yours is 1")
+
+
+def _measured(env: Env, tmp_path: Path, who: str) -> None:
+    """``who`` corrects a gold run onto the truth: their accuracy is measured."""
+    gold = env.import_run(f"drive-gold-{who}", seed=41)
+    _gold(env, tmp_path, gold)
+    env.client("admin").post("/api/v1/tasks", json=task_body([gold], assignments_per_run=1, priority=10))
+    a = _next(env, who)["assignment"]
+    assert a["run_id"] == gold
+    _submit(env, who, a, 0.0)
+    env.drain()
+
+
+def test_work_off_the_weighted_consensus_waits_and_a_bad_majority_is_not_merged(env: Env, tmp_path: Path) -> None:
+    for who in ("good", "bad1", "bad2"):
+        env.add_user(who, "operator")
+    _measured(env, tmp_path, "good")
+    work = env.import_run("drive-work", seed=42)
+    task = env.client("admin").post("/api/v1/tasks", json=task_body([work], assignments_per_run=3)).json()
+    ids = {}
+    for who, east, north in (("good", 0.0, 0.0), ("bad1", 25.0, 0.0), ("bad2", 0.0, 25.0)):
+        a = _next(env, who)["assignment"]
+        assert a["run_id"] == work
+        _submit(env, who, a, east, north)
+        ids[who] = a["id"]
+    env.drain()
+    tr = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()["runs"][0]
+    # the unknown two (who disagree with each other too) are off the measured operator's consensus by far more than their expected accuracy:
+    # they wait for a reviewer; the measured operator's work keeps its auto-approval time
+    assert tr["status"] in ("agreed", "conflict")
+    assert {c["a"] for c in tr["conflicts"]} >= {ids["bad1"], ids["bad2"]} and all(c["kind"] == "off_consensus" for c in tr["conflicts"])
+    held = {w: env.client("admin").get(f"/api/v1/assignments/{ids[w]}").json()["auto_approve_at"] for w in ids}
+    assert held["bad1"] is None and held["bad2"] is None and held["good"] is not None
+    view = env.client("reviewer").get(f"/api/v1/task-runs/{tr['id']}/review").json()
+    good = next(s for s in view["submissions"] if s["operator"] == "good")
+    assert good["accuracy_m"] is not None and good["accuracy_m"] < 1.0 and good["weight"] > 0.9
+    # a reviewer backs the majority against the measured operator: the merge would leave the
+    # run further from the trusted operator than its input, so it is stopped
+    rv = env.client("reviewer")
+    rv.post(f"/api/v1/assignments/{ids['good']}/review", json={"decision": "reject"})
+    for w in ("bad1", "bad2"):
+        rv.post(f"/api/v1/assignments/{ids[w]}/review", json={"decision": "approve"})
+    env.drain()
+    tr = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()["runs"][0]
+    assert tr["status"] == "unmerged" and tr["merged_revision"] is None
+    view = rv.get(f"/api/v1/task-runs/{tr['id']}/review").json()
+    assert "further than the input from every trusted operator" in view["merge_detail"]["stopped"]
+    assert env.client("admin").get(f"/api/v1/runs/{work}").json()["head_revision"] == 0
