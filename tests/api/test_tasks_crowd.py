@@ -99,7 +99,7 @@ def test_work_off_the_weighted_consensus_waits_and_a_bad_majority_is_not_merged(
     # a reviewer backs the majority against the measured operator: the merge would leave the
     # run further from the trusted operator than its input, so it is stopped
     rv = env.client("reviewer")
-    rv.post(f"/api/v1/assignments/{ids['good']}/review", json={"decision": "reject"})
+    assert rv.post(f"/api/v1/assignments/{ids['good']}/review", json={"decision": "reject", "feedback": "disagrees with the others"}).status_code == 200
     for w in ("bad1", "bad2"):
         rv.post(f"/api/v1/assignments/{ids[w]}/review", json={"decision": "approve"})
     env.drain()

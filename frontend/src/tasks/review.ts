@@ -232,12 +232,12 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
 
   /** Rank, weight in the consensus, and the operator's measured accuracy beside their distance. */
   function weighing(s: ReviewView["submissions"][number]) {
-    if (s.rank === null) return null;
-    const acc = s.accuracy_m !== null ? `accuracy ${s.accuracy_m.toFixed(2)} m on ${s.gold_scored} gold run(s)` : "accuracy not measured";
+    if (s.rank == null) return null;
+    const acc = s.accuracy_m != null ? `accuracy ${s.accuracy_m.toFixed(2)} m on ${s.gold_scored ?? 0} gold run(s)` : "accuracy not measured";
     return h("p", { class: "weighing", "data-testid": `weighing-${s.assignment_id}` },
-      `#${s.rank} · ${s.distance_m !== null ? `${s.distance_m.toFixed(2)} m from the weighted consensus` : ""}`,
-      s.expected_m !== null ? ` (accuracy explains ${s.expected_m.toFixed(2)} m)` : "",
-      ` · ${acc}`, s.weight !== null ? ` · weight ${Math.round(s.weight * 100)} %` : "",
+      `#${s.rank} · ${s.distance_m != null ? `${s.distance_m.toFixed(2)} m from the weighted consensus` : ""}`,
+      s.expected_m != null ? ` (accuracy explains ${s.expected_m.toFixed(2)} m)` : "",
+      ` · ${acc}`, s.weight != null ? ` · weight ${Math.round(s.weight * 100)} %` : "",
       s.off_consensus ? h("strong", { class: "off", "data-testid": `off-${s.assignment_id}` }, " · off the consensus: held for review") : null);
   }
 
