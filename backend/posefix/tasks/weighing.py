@@ -139,8 +139,10 @@ def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: s
         enough = agree.n_positions >= MIN_POSITIONS
         s_ref = np.where(enough, agree.sigma_m, s_ref)
     ref = s_ref[ops]
-    # never measured: expected to be as good as the median operator of this run
-    ref = np.where(np.isnan(ref), float(np.median(full.sigma_m[ops])), ref)
+    # never measured: expected to be as good as the median measured operator (the median of
+    # this run's own estimates only when nobody is measured: two bad of three would set it)
+    typical = float(np.nanmedian(s_ref)) if np.any(~np.isnan(s_ref)) else float(np.median(full.sigma_m[ops]))
+    ref = np.where(np.isnan(ref), typical, ref)
     fused = fusion.fuse(x_m, valid & truth[:, None], full.sigma_m[ops])
     test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, contributes=truth)
     return Weighing([a.id for a in subs], origin, x_m, valid, moved, full.sigma_m[ops], ref, measured_ops[ops],
