@@ -24,6 +24,17 @@ Rules, applied in this order to the moves sorted by keyframe index:
                       accepts it with a flag.
 
 Rules 1-6 always refuse.  A refused move is left out before rule 7 is judged.
+
+Deletions answer to one rule of their own (``keyframes_left``): a batch may not leave the
+run fewer than ``MIN_KEYFRAMES`` keyframes (or delete the only keyframe of a one-keyframe
+run), since the relative-motion terms and the propagation to every sample need a pose on
+each side of every sample; the reason is ``too_few_keyframes``.
+
+``max_move_m`` defaults to 1,000 m: GNSS in urban canyons is off by 5-60 m and a multipath
+jump by a few hundred at worst, so a longer drag is a slip of the mouse, not a correction.
+Beyond it the local tangent plane the solver works in no longer fits the Earth: a
+horizontal move of d metres lifts the point by about d^2 / (2 R) (0.08 m at 1 km, 24 km at
+the 550 km of a 10 degree drag), and that lift reaches the exported altitudes.
 """
 
 from __future__ import annotations
@@ -42,6 +53,8 @@ REASONS = (
     "order_reversed",
 )
 MIN_CHORD_M = 1.0
+MIN_KEYFRAMES = 2
+TOO_FEW_KEYFRAMES = "too_few_keyframes"  # the reason of ``keyframes_left`` (deletions, not moves)
 
 
 @dataclass(frozen=True)
@@ -51,7 +64,7 @@ class EditRules:
     every_n: int = 1
     lock_n: int = 0
     lock_direction: str = "forward"  # "forward" | "both"
-    max_move_m: float = 0.0  # 0 = unlimited
+    max_move_m: float = 1000.0  # 0 = unlimited (see the module docstring for the default)
     order_rule: str = "flag"  # "refuse" | "flag"
     deleted: str = "remove"  # "remove" | "flag"
 
@@ -224,3 +237,14 @@ def _first_refusal(rules, reported, move, k, seen, deleted_set, adjustable, lock
                 f"Keyframe {i} would move {distance_m:.1f} m; the limit is {rules.max_move_m:g} m.",
             )
     return None
+
+
+def keyframes_left(n_keyframes: int, deleted: list[int], batch_deleted: list[int]) -> list[Refusal]:
+    """Refuse this batch's deletions when, with the earlier ones (``deleted`` holds both),
+    fewer than ``MIN_KEYFRAMES`` keyframes would remain (fewer than the run has, if it has less)."""
+    left = n_keyframes - len({int(i) for i in deleted if 0 <= int(i) < n_keyframes})
+    if left >= min(MIN_KEYFRAMES, n_keyframes):
+        return []
+    message = (f"Deleting these keyframes would leave {left} of the run's {n_keyframes}; "
+               f"a run keeps at least {min(MIN_KEYFRAMES, n_keyframes)}.")
+    return [Refusal(int(i), TOO_FEW_KEYFRAMES, message) for i in sorted({int(i) for i in batch_deleted})]

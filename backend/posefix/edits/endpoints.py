@@ -6,9 +6,10 @@ from typing import Annotated, Any
 
 import anyio
 import orjson
-from fastapi import APIRouter, Header, Query, Request, Response
+from fastapi import APIRouter, Header, Path, Query, Request, Response
 
 from posefix.deps import AnyUser, EditorReader, EditorUser, ReadSessionDep, SessionDep, SettingsDep, solver_limiter
+from posefix.edits import failures
 from posefix.edits import repository as edits_repo
 from posefix.edits import service
 from posefix.edits.schemas import (
@@ -19,6 +20,7 @@ from posefix.errors import responses
 from posefix.runs import repository as runs_repo
 from posefix.runs.access import check_direct_write, get_visible_run
 from posefix.runs.models import Revision
+from posefix.runs.schemas import FailedEdit
 
 router = APIRouter(tags=["edits"])
 
@@ -88,7 +90,8 @@ def list_revisions(run_id: int, principal: AnyUser, session: SessionDep, setting
     notes = edits_repo.revision_notes(session, run.id)
     names = edits_repo.usernames(session, {r.created_by for r in revs if r.created_by is not None})
     items = [_rev_public(r, notes=notes.get(r.number), author=names.get(r.created_by or 0)) for r in revs]
-    return RevisionList(items=items, head_revision=run.head_revision)
+    return RevisionList(items=items, head_revision=run.head_revision,
+                        failed=[failures.failed_json(b) for b in edits_repo.failed_batches(session, run.id)])  # type: ignore[misc]
 
 
 @router.get("/runs/{run_id}/revisions/{number}", response_model=RevisionDetail, responses=responses(401, 404, 409))
@@ -131,3 +134,22 @@ def list_edits(
     """Every edit ever submitted on the run (author, time, task), oldest first."""
     run = get_visible_run(session, principal, settings, run_id)
     return [EditPublic.model_validate(e) for e in edits_repo.edits(session, run.id, batch_id, limit, offset)]
+
+
+@router.post("/runs/{run_id}/batches/{batch_id}/retry", response_model=EditBatchAccepted, status_code=202,
+             responses=responses(401, 403, 404, 409))
+def retry_batch(run_id: int, batch_id: Annotated[int, Path(ge=1, le=2**62)], request: Request, principal: EditorUser,
+                session: SessionDep, settings: SettingsDep) -> EditBatchAccepted:
+    """Compute a failed batch's revision again (its author, a reviewer or an admin); 409
+    ``stale_revision`` when the run has moved on since (edit again on the latest revision)."""
+    run = get_visible_run(session, principal, settings, run_id)
+    batch = failures.retry(session, settings, principal, run, batch_id, wake=_wake(request))
+    return EditBatchAccepted(batch_id=batch.id, job_id=batch.job_id, revision=batch.revision, flags=[])  # type: ignore[arg-type]
+
+
+@router.post("/runs/{run_id}/batches/{batch_id}/discard", response_model=FailedEdit, responses=responses(401, 403, 404, 409))
+def discard_batch(run_id: int, batch_id: Annotated[int, Path(ge=1, le=2**62)], principal: EditorUser,
+                  session: SessionDep, settings: SettingsDep) -> dict[str, Any]:
+    """Close a failed batch (its author, a reviewer or an admin): the run no longer shows it."""
+    run = get_visible_run(session, principal, settings, run_id)
+    return failures.failed_json(failures.discard(session, principal, run, batch_id))

@@ -7,7 +7,8 @@ row is committed (unique ``(run_id, number)``). Whoever finds the row committed 
 committed it, a run that lost the race, a re-run after a worker died mid-job) removes every
 other file of revision N: those of runs that died before committing, half-written
 temporaries included. Revisions whose job died for good are swept by the worker's cleanup
-(``sweep_dead_revision_jobs``).
+(``sweep_dead_revision_jobs``), which also fails their batch and rolls the run's head back
+(``edits.failures``). A revision is committed only while its batch is still pending.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from sqlalchemy.exc import IntegrityError
 
 from posefix.config import Settings
 from posefix.db import Database
+from posefix.edits import failures
 from posefix.edits import repository as edits_repo
 from posefix.edits.service import REVISION_JOB
 from posefix.jobs.models import Job, JobStatus
@@ -52,6 +54,10 @@ def sweep_after_commit(db: Database, fs: storage.FileStore, run_id: int, number:
     return removed
 
 
+class _NotPending(Exception):
+    pass
+
+
 @register(REVISION_JOB)
 def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
     try:
@@ -71,12 +77,14 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
             assert run is not None and batch is not None and rev0 is not None
             rules, name, derived = dict(run.rules), run.name, run.orientation_derived
             edit_set, author = dict(batch.edit_set), batch.author_id
-            kind = batch.kind
+            kind, batch_status = batch.kind, batch.status
             samples0 = rev0.samples_file
             prev_number = batch.base_revision
     if existing is not None:
         removed = sweep_after_commit(ctx.db, fs, run_id, number)
         return {"run_id": run_id, "revision": number, "already_written": True, "removed_files": len(removed)}
+    if batch_status != "pending":
+        raise PermanentJobError(f"edit batch {batch_id} is {batch_status}; its revision is not computed")
 
     ctx.progress(0.05, "loading run")
     cfg = engine_config(settings, rules)
@@ -116,6 +124,8 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
     solver, drift = sol.solver.to_json(), sol.drift.to_json()
     try:
         with ctx.db.transaction() as s:
+            if not edits_repo.mark_ready(s, batch_id):
+                raise _NotPending
             s.add(Revision(
                 run_id=run_id, number=number, kind=kind, batch_id=batch_id, created_by=author, edit_set=edit_set,
                 solver=solver, drift=drift, samples_file=samples_rel, keyframes_file=kf_rel, max_correction_m=max_corr,
@@ -132,6 +142,14 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
             fs.remove(rel)
         sweep_after_commit(ctx.db, fs, run_id, number)
         return {"run_id": run_id, "revision": number, "already_written": True}
+    except _NotPending:
+        for rel in mine:
+            fs.remove(rel)
+        if committed_files(ctx.db, run_id, number) is not None:  # another run of this job came first
+            sweep_after_commit(ctx.db, fs, run_id, number)
+            return {"run_id": run_id, "revision": number, "already_written": True}
+        # the batch failed meanwhile (this run of the job outlived its lease): nothing is written
+        return {"run_id": run_id, "revision": number, "already_written": False, "batch_failed": True}
     removed = sweep_after_commit(ctx.db, fs, run_id, number)
     solutions.PROBLEMS.put_solution(run_id, rules, number, sol)
     return {"run_id": run_id, "revision": number, "already_written": False, "solver": solver,
@@ -140,28 +158,40 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
 
 @register_cleanup
 def sweep_dead_revision_jobs(db: Database, settings: Settings) -> int:
-    """Remove the files of revisions whose job is dead (they will never be committed: the
-    run's head has moved past them), once per job; returns how many files were removed."""
+    """Once per dead revision job: remove its revision's files (they will never be committed),
+    then fail its batch and roll the run's head back, which frees the revision's number (so
+    the files go first); returns how many files were removed."""
     fs = storage.FileStore(settings.files_dir)
     with db.transaction(write=False) as s:
         dead = s.execute(
-            select(Job.id, Job.payload).where(Job.kind == REVISION_JOB, Job.status == JobStatus.dead, Job.result.is_(None))
+            select(Job.id, Job.payload, Job.last_error).where(Job.kind == REVISION_JOB, Job.status == JobStatus.dead,
+                                                              Job.result.is_(None))
             .order_by(Job.id).limit(100)
         ).all()
     total = 0
-    for job_id, payload in dead:
+    for job_id, payload, last_error in dead:
         removed: list[str] = []
         try:
-            run_id, number = int(payload["run_id"]), int(payload["revision"])
+            run_id, number, batch_id = int(payload["run_id"]), int(payload["revision"]), int(payload["batch_id"])
         except (KeyError, TypeError, ValueError):
-            run_id = number = -1
-        if run_id >= 0 and committed_files(db, run_id, number) is None:
+            run_id = number = batch_id = -1
+        if run_id >= 0 and committed_files(db, run_id, number) is None and _still_pending(db, batch_id):
             removed = storage.sweep_revision_files(fs, run_id, number, set())
         with db.transaction() as s:
-            s.execute(update(Job).where(Job.id == job_id, Job.status == JobStatus.dead, Job.result.is_(None))
-                      .values(result={"removed_files": removed}))
+            claimed = s.execute(update(Job).where(Job.id == job_id, Job.status == JobStatus.dead, Job.result.is_(None))
+                                .values(result={"removed_files": removed})).rowcount == 1
+            if claimed and batch_id >= 0:
+                reason = (last_error or "the revision job died").split("\n", 1)[0]
+                failures.fail_batch(s, batch_id, reason, job_id=job_id)
         total += len(removed)
     return total
+
+
+def _still_pending(db: Database, batch_id: int) -> bool:
+    """Whether the batch still holds its number (no other batch can be writing its files)."""
+    with db.transaction(write=False) as s:
+        batch = edits_repo.batch(s, batch_id)
+        return batch is not None and batch.status == "pending"
 
 
 __all__ = ["compute_revision", "sweep_dead_revision_jobs"]

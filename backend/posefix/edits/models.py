@@ -1,24 +1,42 @@
 """Edit batches and the individual edits, appended and never overwritten.
 
-A batch claims revision ``base_revision + 1`` of its run when it is submitted (the unique
-``(run_id, revision)`` constraint makes the claim exclusive) and carries the cumulative
-edit set that revision is solved from; the worker writes the revision later.
+A batch claims revision ``base_revision + 1`` of its run when it is submitted (a unique
+index on ``(run_id, revision)`` over live batches makes the claim exclusive) and carries the
+cumulative edit set that revision is solved from; the worker writes the revision later.
+
+Status: ``pending`` until its revision is written (``ready``). A batch whose revision job
+died is ``failed`` (``error`` says why): the run's head goes back, so the number is free
+again; its author may retry it (pending again, if the run has not moved on) or discard it.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import enum
 from typing import Any
 
-from sqlalchemy import JSON, Boolean, Float, ForeignKey, Integer, String, Text, UniqueConstraint
+from sqlalchemy import JSON, Boolean, Float, ForeignKey, Index, Integer, String, Text, text
 from sqlalchemy.orm import Mapped, mapped_column
 
 from posefix.db import Base, UTCDateTime, utcnow
 
 
+class BatchStatus(enum.StrEnum):
+    pending = "pending"
+    ready = "ready"
+    failed = "failed"
+    discarded = "discarded"
+
+
+LIVE = "status IN ('pending', 'ready')"
+
+
 class EditBatch(Base):
     __tablename__ = "edit_batches"
-    __table_args__ = (UniqueConstraint("run_id", "revision"),)
+    __table_args__ = (
+        Index("uq_edit_batches_live_revision", "run_id", "revision", unique=True,
+              sqlite_where=text(LIVE), postgresql_where=text(LIVE)),
+    )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
@@ -32,6 +50,9 @@ class EditBatch(Base):
     edit_set: Mapped[dict[str, Any]] = mapped_column(JSON)
     job_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
     created_at: Mapped[dt.datetime] = mapped_column(UTCDateTime, default=utcnow)
+    status: Mapped[str] = mapped_column(String(16), default=BatchStatus.pending)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    failed_at: Mapped[dt.datetime | None] = mapped_column(UTCDateTime, nullable=True)
 
 
 class Edit(Base):

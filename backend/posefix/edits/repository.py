@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import insert, select
+from sqlalchemy import func, insert, select, update
 from sqlalchemy.orm import Session
 
-from posefix.edits.models import Edit, EditBatch
+from posefix.db import utcnow
+from posefix.edits.models import BatchStatus, Edit, EditBatch
 from posefix.runs.models import RunEvent
 from posefix.users.models import User
+
+LIVE = (BatchStatus.pending, BatchStatus.ready)
 
 
 def add(session: Session, obj: object) -> None:
@@ -22,7 +25,50 @@ def batch(session: Session, batch_id: int) -> EditBatch | None:
 
 
 def batch_for_revision(session: Session, run_id: int, revision: int) -> EditBatch | None:
-    return session.scalars(select(EditBatch).where(EditBatch.run_id == run_id, EditBatch.revision == revision)).one_or_none()
+    """The live (pending or ready) batch that claimed ``revision``."""
+    return session.scalars(select(EditBatch).where(
+        EditBatch.run_id == run_id, EditBatch.revision == revision, EditBatch.status.in_(LIVE))).one_or_none()
+
+
+def failed_batch_for_revision(session: Session, run_id: int, revision: int) -> EditBatch | None:
+    """The latest failed or discarded batch that had claimed ``revision``."""
+    return session.scalars(select(EditBatch).where(
+        EditBatch.run_id == run_id, EditBatch.revision == revision, EditBatch.status.not_in(LIVE))
+        .order_by(EditBatch.id.desc()).limit(1)).one_or_none()
+
+
+def failed_batches(session: Session, run_id: int) -> list[EditBatch]:
+    return list(session.scalars(select(EditBatch).where(
+        EditBatch.run_id == run_id, EditBatch.status.not_in(LIVE)).order_by(EditBatch.id)))
+
+
+def last_failed(session: Session, run_ids: list[int]) -> dict[int, EditBatch]:
+    """Per run, its latest batch when that batch failed (later batches make it moot)."""
+    if not run_ids:
+        return {}
+    last = select(func.max(EditBatch.id)).where(EditBatch.run_id.in_(run_ids)).group_by(EditBatch.run_id)
+    rows = session.scalars(select(EditBatch).where(EditBatch.id.in_(last), EditBatch.status == BatchStatus.failed))
+    return {b.run_id: b for b in rows}
+
+
+def mark_ready(session: Session, batch_id: int) -> bool:
+    """pending -> ready, in the transaction that writes its revision; False when it is not pending."""
+    res = session.execute(update(EditBatch).where(EditBatch.id == batch_id, EditBatch.status == BatchStatus.pending)
+                          .values(status=BatchStatus.ready))
+    return (res.rowcount or 0) == 1
+
+
+def mark_failed(session: Session, batch_id: int, error: str) -> bool:
+    """pending -> failed; False when the batch is not pending (its revision was written)."""
+    res = session.execute(update(EditBatch).where(EditBatch.id == batch_id, EditBatch.status == BatchStatus.pending)
+                          .values(status=BatchStatus.failed, error=error[:4000], failed_at=utcnow()))
+    return (res.rowcount or 0) == 1
+
+
+def pending_below(session: Session, run_id: int, revision: int) -> int | None:
+    """The highest revision below ``revision`` a pending batch of the run claims."""
+    return session.scalar(select(func.max(EditBatch.revision)).where(
+        EditBatch.run_id == run_id, EditBatch.revision < revision, EditBatch.status == BatchStatus.pending))
 
 
 def insert_edits(session: Session, rows: list[dict[str, Any]]) -> None:

@@ -7,6 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from posefix.runs.schemas import FailedEdit
+
 
 class MoveIn(BaseModel):
     index: int = Field(ge=0, le=10**7, description="keyframe index")
@@ -91,6 +93,7 @@ class RevisionDetail(RevisionPublic):
 class RevisionList(BaseModel):
     items: list[RevisionPublic]
     head_revision: int
+    failed: list[FailedEdit] = Field(default_factory=list, description="batches whose revision failed, oldest first")
 
 
 class EditPublic(BaseModel):

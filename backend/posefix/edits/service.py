@@ -23,6 +23,7 @@ from posefix.edits.schemas import MoveIn
 from posefix.core.geodesy import horizontal_distance_m
 from posefix.engine import Edit, Edits
 from posefix.engine.edits import check_batch
+from posefix.core.rules import keyframes_left
 from posefix.errors import BadRequest, Conflict, NotFound, Unprocessable
 from posefix.jobs import repository as jobs
 from posefix.runs import solutions, storage
@@ -74,6 +75,10 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
     started = time.perf_counter()
     base, keyframes_file = revision_base(session, settings, run, base_revision)
     problem = load_problem(session, settings, run)
+    k = len(problem.keyframe_index)
+    too_few = keyframes_left(k, list(base.get("deleted", [])) + [d for d in deleted if 0 <= d < k], [d for d in deleted if 0 <= d < k])
+    if too_few:  # nothing to show: the run would have no track left
+        raise Unprocessable(too_few[0].message, code="edit_refused", extra={"refusals": [r.to_json() for r in too_few]})
     pv, base_solved = solutions.preview(run.id, run.rules, base_revision, problem, base,
                                         stored_solution(settings, run, keyframes_file), _moves(moves), deleted)
     return {
@@ -233,6 +238,10 @@ def revert(
 def ready(session: Session, run: Run, number: int) -> Revision:
     rev = runs_repo.revision(session, run.id, number)
     if rev is None:
+        failed = edits_repo.failed_batch_for_revision(session, run.id, number) if number > run.head_revision else None
+        if failed is not None:
+            raise Conflict(f"revision {number} failed: {failed.error}", code="revision_failed",
+                           extra={"batch_id": failed.id, "reason": failed.error, "head_revision": run.head_revision})
         if 0 <= number <= run.head_revision:
             raise Conflict(f"revision {number} is still being computed", code="revision_pending",
                            extra={"revision": run.revision, "head_revision": run.head_revision})

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from posefix.core.rules import EditRules, KeyframeMove, Refusal, RuleCheck, check_edits
+from posefix.core.rules import EditRules, KeyframeMove, Refusal, RuleCheck, check_edits, keyframes_left
 
 
 @dataclass(frozen=True)
@@ -100,8 +100,9 @@ def check_batch(problem, rules: EditRules, base: Edits, moves: list[Edit], delet
     km = [KeyframeMove(m.index, float(c[0]), float(c[1])) for m, c in zip(moves, en)]
     all_deleted = sorted(set(base.deleted) | {int(d) for d in deleted if 0 <= d < k})
     check = check_edits(rules, problem.p_enu_m[index, :2], km, all_deleted, edited_before)
-    if out_of_range:
-        return RuleCheck(accepted=check.accepted, refusals=out_of_range + check.refusals, flags=check.flags)
+    too_few = keyframes_left(k, all_deleted, [int(d) for d in deleted if 0 <= d < k])
+    if out_of_range or too_few:
+        return RuleCheck(accepted=check.accepted, refusals=out_of_range + too_few + check.refusals, flags=check.flags)
     return check
 
 

@@ -132,13 +132,22 @@ def list_runs(
         since=since, until=until, limit=limit, offset=offset,
     )
     counts = repo.image_counts(session, [r.id for r in rows])
-    return RunList(items=[service.run_public(r, counts.get(r.id, 0)) for r in rows], total=total, limit=limit, offset=offset)
+    failed = _failed_edits(session, [r.id for r in rows])
+    return RunList(items=[service.run_public(r, counts.get(r.id, 0), failed.get(r.id)) for r in rows],
+                   total=total, limit=limit, offset=offset)
+
+
+def _failed_edits(session: Any, run_ids: list[int]) -> dict[int, dict[str, Any]]:
+    from posefix.edits import repository as edits_repo
+    from posefix.edits.failures import failed_json
+
+    return {rid: failed_json(b) for rid, b in edits_repo.last_failed(session, run_ids).items()}
 
 
 @router.get("/runs/{run_id}", response_model=RunPublic, responses=responses(401, 404))
 def get_run(run_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> RunPublic:
     run = get_visible_run(session, principal, settings, run_id)
-    return service.run_public(run, repo.image_counts(session, [run.id]).get(run.id, 0))
+    return service.run_public(run, repo.image_counts(session, [run.id]).get(run.id, 0), _failed_edits(session, [run.id]).get(run.id))
 
 
 @router.delete("/runs/{run_id}", status_code=204, responses=responses(401, 403, 404))

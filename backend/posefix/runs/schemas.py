@@ -10,6 +10,18 @@ from pydantic import BaseModel, ConfigDict, Field
 from posefix.runs.models import RunStatus
 
 
+class FailedEdit(BaseModel):
+    """An edit batch whose revision could not be computed (its job died), and why."""
+
+    batch_id: int
+    revision: int = Field(description="the revision number the batch had claimed (free again)")
+    base_revision: int
+    status: str = Field(description="failed (retry or discard it) or discarded")
+    error: str | None
+    failed_at: dt.datetime | None
+    author_id: int | None
+
+
 class RunPublic(BaseModel):
     model_config = ConfigDict(from_attributes=True)
     id: int
@@ -35,6 +47,8 @@ class RunPublic(BaseModel):
     n_images: int = 0
     created_at: dt.datetime
     updated_at: dt.datetime
+    failed_edit: FailedEdit | None = Field(
+        default=None, description="the run's latest batch when its revision failed: retry or discard it")
 
 
 class RunList(BaseModel):

@@ -47,9 +47,10 @@ def store(settings: Settings) -> storage.FileStore:
     return storage.FileStore(settings.files_dir)
 
 
-def run_public(run: Run, n_images: int = 0) -> RunPublic:
+def run_public(run: Run, n_images: int = 0, failed: dict[str, Any] | None = None) -> RunPublic:
     data = {c: getattr(run, c) for c in RunPublic.model_fields if hasattr(run, c) and c != "bbox"}
-    return RunPublic(**data, bbox=[run.min_lon, run.min_lat, run.max_lon, run.max_lat], n_images=n_images)
+    return RunPublic(**data, bbox=[run.min_lon, run.min_lat, run.max_lon, run.max_lat], n_images=n_images,
+                     failed_edit=failed)
 
 
 # -- import --------------------------------------------------------------------------------

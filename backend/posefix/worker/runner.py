@@ -148,6 +148,8 @@ class Worker:
             with self.db.transaction() as s:
                 status = jobs.fail(s, job, self.worker_id, error, backoff_s(self.settings, job.attempts), permanent=permanent)
             log.warning("job %s failed (%s): %s", job.id, status, exc, extra=extra)
+            if status == "dead":
+                self.clean_up()  # what waits on the job (a run's head) is released now, not at the next sweep
         finally:
             done.set()
             beater.join(timeout=5)

@@ -63,6 +63,11 @@ export const api = {
       }),
     ),
 
+  retryBatch: (id: string, batchId: number) =>
+    unwrap(client.POST("/api/v1/runs/{run_id}/batches/{batch_id}/retry", { params: { path: { run_id: Number(id), batch_id: batchId } } })),
+  discardBatch: (id: string, batchId: number) =>
+    unwrap(client.POST("/api/v1/runs/{run_id}/batches/{batch_id}/discard", { params: { path: { run_id: Number(id), batch_id: batchId } } })),
+
   getJob: (id: string | number) => unwrap(client.GET("/api/v1/jobs/{job_id}", { params: { path: { job_id: Number(id) } } })),
   listRevisions: (id: string) => unwrap(client.GET("/api/v1/runs/{run_id}/revisions", { params: { path: { run_id: Number(id) } } })),
   diff: (id: string, from: number, to: number) =>

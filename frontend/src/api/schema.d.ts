@@ -588,6 +588,47 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/runs/{run_id}/batches/{batch_id}/discard": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Discard Batch
+         * @description Close a failed batch (its author, a reviewer or an admin): the run no longer shows it.
+         */
+        post: operations["discard_batch_api_v1_runs__run_id__batches__batch_id__discard_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
+    "/api/v1/runs/{run_id}/batches/{batch_id}/retry": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        get?: never;
+        put?: never;
+        /**
+         * Retry Batch
+         * @description Compute a failed batch's revision again (its author, a reviewer or an admin); 409
+         *     ``stale_revision`` when the run has moved on since (edit again on the latest revision).
+         */
+        post: operations["retry_batch_api_v1_runs__run_id__batches__batch_id__retry_post"];
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/runs/{run_id}/diff": {
         parameters: {
             query?: never;
@@ -1472,6 +1513,32 @@ export interface components {
         } & {
             [key: string]: unknown;
         };
+        /**
+         * FailedEdit
+         * @description An edit batch whose revision could not be computed (its job died), and why.
+         */
+        FailedEdit: {
+            /** Author Id */
+            author_id: number | null;
+            /** Base Revision */
+            base_revision: number;
+            /** Batch Id */
+            batch_id: number;
+            /** Error */
+            error: string | null;
+            /** Failed At */
+            failed_at: string | null;
+            /**
+             * Revision
+             * @description the revision number the batch had claimed (free again)
+             */
+            revision: number;
+            /**
+             * Status
+             * @description failed (retry or discard it) or discarded
+             */
+            status: string;
+        };
         /** FloorPlanList */
         FloorPlanList: {
             /** Items */
@@ -2045,6 +2112,11 @@ export interface components {
         };
         /** RevisionList */
         RevisionList: {
+            /**
+             * Failed
+             * @description batches whose revision failed, oldest first
+             */
+            failed?: components["schemas"]["FailedEdit"][];
             /** Head Revision */
             head_revision: number;
             /** Items */
@@ -2139,7 +2211,7 @@ export interface components {
             /**
              * Max Move M
              * @description 0 = unlimited
-             * @default 0
+             * @default 1000
              */
             max_move_m?: number;
             /**
@@ -2207,6 +2279,8 @@ export interface components {
              * Format: date-time
              */
             created_at: string;
+            /** @description the run's latest batch when its revision failed: retry or discard it */
+            failed_edit?: components["schemas"]["FailedEdit"] | null;
             /**
              * Head Revision
              * @description latest revision claimed by a submitted batch
@@ -5038,6 +5112,142 @@ export interface operations {
             };
             /** @description Not found */
             404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    discard_batch_api_v1_runs__run_id__batches__batch_id__discard_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                run_id: number;
+                batch_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["FailedEdit"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not allowed */
+            403: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Conflict */
+            409: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Validation Error */
+            422: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    retry_batch_api_v1_runs__run_id__batches__batch_id__retry_post: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path: {
+                run_id: number;
+                batch_id: number;
+            };
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            202: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["EditBatchAccepted"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not allowed */
+            403: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Not found */
+            404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Conflict */
+            409: {
                 headers: {
                     [name: string]: unknown;
                 };

@@ -54,7 +54,7 @@ export const DEFAULT_RULES: EditRules = {
   every_n: 1,
   lock_n: 0,
   lock_direction: "forward",
-  max_move_m: 0,
+  max_move_m: 1000,
   order_rule: "flag",
   deleted: "remove",
 };

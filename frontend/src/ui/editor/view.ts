@@ -20,6 +20,7 @@ import { basemapOptions, basemapSwitcher, initialBasemap, mapErrorMessage, showB
 import { CorrectionChart } from "./chart";
 import { ConflictPanel } from "./conflict";
 import { EditorController } from "./controller";
+import { FailedEditNotice } from "./failed";
 import { ImagesPanel } from "./images";
 import { HistoryPanel } from "./history";
 import { driftInfo, legend, selectionInfo, statusBar } from "./panels";
@@ -99,7 +100,9 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
   const conflict = new ConflictPanel({ reapply: () => void ctl.reloadAndReapply(), discard: () => void ctl.reloadDiscarding() });
   const rangeConfirm = new RangeConfirm();
   const refusal = new RefusalView(() => store.update(dismissRefusal));
-  const root = h("div", { class: "editor" }, toolbar.el, errorBox, conflict.newerBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict.dialog, rangeConfirm.el, refusal.live);
+  const failed = new FailedEditNotice(runId, notify);
+  void failed.refresh().catch(() => undefined);  // the run itself loads (and reports errors) below
+  const root = h("div", { class: "editor" }, toolbar.el, errorBox, failed.el, conflict.newerBox, h("div", { class: "editor-body" }, mapWrap, side), bottom, conflict.dialog, rangeConfirm.el, refusal.live);
   main.append(root);
   ctl.onNotice = notify;
 
