@@ -27,8 +27,10 @@ from posefix.config import Settings
 from posefix.db import Database
 from posefix.deps import refuse_nul
 from posefix.errors import install_error_handlers
+from posefix.edits.failures import failed_edits
 from posefix.hardening import BodyTimeoutMiddleware, SecurityHeadersMiddleware
 from posefix.runs.access import register_operator_runs, register_task_runs
+from posefix.runs.endpoints import register_failed_edits
 from posefix.tasks.access import live_runs, runs_of_assignments, task_runs
 
 log = logging.getLogger("posefix.http")
@@ -180,6 +182,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     configure_logging(settings)
     register_operator_runs(runs_of_assignments)
     register_task_runs(task_runs, live_runs)
+    register_failed_edits(failed_edits)
     db = Database(
         settings.resolved_database_url,
         pool_size=settings.db_pool_size,

@@ -93,13 +93,13 @@ def _samples_path(app, rid: int):
 
 def _edit_that_dies(client, users, app, rid: int, base: int, move: dict) -> dict:
     """Submit an edit whose revision job cannot read the run's samples (a storage outage)."""
-    from posefix.runs import correction
+    from posefix.runs import solutions
 
     r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": base, "moves": [move]}, headers=users["admin"])
     assert r.status_code == 202, r.text
     path = _samples_path(app, rid)
     path.rename(path.with_name(path.name + ".away"))
-    correction.PROBLEMS.forget_all()  # the worker must read the file
+    solutions.PROBLEMS.forget_all()  # the worker must read the file
     job = wait_job(app, r.json()["job_id"])
     assert job["status"] == "dead" and job["attempts"] == app.state.settings.job_max_attempts
     path.with_name(path.name + ".away").rename(path)

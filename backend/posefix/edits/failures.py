@@ -33,6 +33,11 @@ def failed_json(batch: EditBatch) -> dict[str, Any]:
             "status": batch.status, "error": batch.error, "failed_at": batch.failed_at, "author_id": batch.author_id}
 
 
+def failed_edits(session: Session, run_ids: list[int]) -> dict[int, dict[str, Any]]:
+    """Per run, its latest batch as ``failed_json`` when that batch failed."""
+    return {rid: failed_json(b) for rid, b in edits_repo.last_failed(session, run_ids).items()}
+
+
 def _status_before(session: Session, run: Run, batch: EditBatch) -> str | None:
     """The run's status before the batch changed it, while the batch's change still stands."""
     events = session.query(RunEvent).filter(RunEvent.run_id == run.id, RunEvent.revision == batch.revision,

@@ -138,10 +138,19 @@ def list_runs(
 
 
 def _failed_edits(session: Any, run_ids: list[int]) -> dict[int, dict[str, Any]]:
-    from posefix.edits import repository as edits_repo
-    from posefix.edits.failures import failed_json
+    """Runs whose latest edit batch failed (answered by the edits domain, registered by the app factory)."""
+    out: dict[int, dict[str, Any]] = {}
+    for provider in FAILED_EDITS:
+        out.update(provider(session, run_ids))
+    return out
 
-    return {rid: failed_json(b) for rid, b in edits_repo.last_failed(session, run_ids).items()}
+
+FAILED_EDITS: list[Any] = []
+
+
+def register_failed_edits(provider: Any) -> None:
+    if provider not in FAILED_EDITS:
+        FAILED_EDITS.append(provider)
 
 
 @router.get("/runs/{run_id}", response_model=RunPublic, responses=responses(401, 404))
