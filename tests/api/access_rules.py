@@ -52,7 +52,7 @@ RULES: dict[tuple[str, str], str] = {
     ("GET", "/api/v1/runs/{run_id}/edits"):                          "401 ok 404 404 ok ok ok ok ok",
     ("GET", "/api/v1/runs/{run_id}/revisions"):                      "401 ok 404 404 ok ok ok ok ok",
     ("GET", "/api/v1/runs/{run_id}/revisions/{number}"):             "401 ok 404 404 ok ok ok ok ok",
-    ("GET", "/api/v1/runs/{run_id}/diff"):                           "401 ok ok ok ok ok ok ok ok",
+    ("GET", "/api/v1/runs/{run_id}/diff"):                           "401 ok 404 404 ok ok ok ok ok",
     ("POST", "/api/v1/runs/{run_id}/revert"):                        "401 403 404 404 ok ok ok 403 ok",
     ("POST", "/api/v1/runs/{run_id}/batches/{batch_id}/retry"):      "401 403 404 404 ok ok ok 403 ok",
     ("POST", "/api/v1/runs/{run_id}/batches/{batch_id}/discard"):    "401 403 404 404 ok ok ok 403 ok",
