@@ -32,6 +32,7 @@ all-within-requirement runs.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -112,7 +113,9 @@ class Instance:
 
     def __init__(self, root: Path, n_ops: int) -> None:
         self.root = root
-        env = {"POSEFIX_DATABASE_URL": f"sqlite:///{root / 'crowd.db'}", "POSEFIX_DATA_DIR": str(root / "var"),
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        env = {"POSEFIX_ALLOWED_ORIGINS": json.dumps([self.base]), "POSEFIX_DATABASE_URL": f"sqlite:///{root / 'crowd.db'}", "POSEFIX_DATA_DIR": str(root / "var"),
                "POSEFIX_ENVIRONMENT": "test", "POSEFIX_LOG_LEVEL": "WARNING", "POSEFIX_LOG_JSON": "false"}
         os.environ.update(env)
         from posefix.config import Settings
@@ -129,8 +132,6 @@ class Instance:
             for i in range(n_ops):
                 create_user(s, f"op{i:02d}", PASSWORD, Role.operator)
         db.dispose()
-        self.port = free_port()
-        self.base = f"http://127.0.0.1:{self.port}"
         self.process = serve(env, self.port, root / "server.log")
         self.admin = login(self.base, "admin", PASSWORD)
         self.reviewer = login(self.base, "reviewer", PASSWORD)
