@@ -74,23 +74,22 @@ class _Steps:
             self.bar.close()
 
 
-def _preload(module: str):
-    """Import ``module`` in a background thread while the main thread parses input.
+def _preload_engine():
+    """Import the engine in a background thread while the main thread parses input.
 
     The CSV parser runs in C++ without the GIL, so importing the engine (scipy) alongside
     it overlaps most of that import on a multi-core machine. A failure is left for the
     main thread's own import to raise.
     """
-    import importlib
     import threading
 
     def load() -> None:
         try:
-            importlib.import_module(module)
+            import posefix.engine  # noqa: F401
         except Exception:  # noqa: BLE001 - re-raised by the main thread's import
             pass
 
-    th = threading.Thread(target=load, name=f"preload-{module}", daemon=True)
+    th = threading.Thread(target=load, name="preload-posefix.engine", daemon=True)
     th.start()
     return th
 
@@ -139,7 +138,7 @@ def correct_command(
         out_fmt = fmt or detect_format(output, for_writing=True)
         _check_output_path(output, [run_path] + ([edits_path] if edits_path else []))
         steps = _Steps(["read", "edits", "correct", "write"], quiet)
-        preload = _preload("posefix.engine")
+        preload = _preload_engine()
         steps("reading run")
         run = read_run(run_path, fmt=input_format, origin=o)
         steps.done()

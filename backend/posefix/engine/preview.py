@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from posefix.core import geodesy
-from posefix.core.drift import LEVEL_TAPER_KEYFRAMES, DriftEstimate, DriftParams, estimate_drift
+from posefix.core.drift import LEVEL_TAPER_KEYFRAMES, DriftEstimate, DriftParams
 from posefix.engine.edits import Edit, Edits, accepted_batch, check_batch, targets_enu
 from posefix.engine.results import Preview, Solution
 

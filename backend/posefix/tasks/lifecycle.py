@@ -16,7 +16,7 @@ from posefix.errors import Conflict, Forbidden, NotFound, Unprocessable
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Run, RunStatus
 from posefix.tasks import repository as repo
-from posefix.tasks.models import AssignmentStatus, GoldRun, Task, TaskRun, TaskRunStatus, TaskStatus
+from posefix.tasks.models import GoldRun, Task, TaskRun, TaskRunStatus, TaskStatus
 from posefix.tasks.schemas import TaskCreate, TaskPublic, TaskRunPublic
 from posefix.tasks.states import ensure_maintenance, move_task, slot, withdraw
 from posefix.users.models import Role
@@ -95,11 +95,6 @@ def create_task(session: Session, settings: Settings, principal: Principal, body
     return task, True
 
 
-def slot(tr: TaskRun, now: dt.datetime) -> dict[str, Any]:
-    return {"task_id": tr.task_id, "task_run_id": tr.id, "run_id": tr.run_id, "status": AssignmentStatus.open,
-            "created_at": now, "updated_at": now}
-
-
 def get_task(session: Session, principal: Principal, task_id: int) -> Task:
     task = session.get(Task, task_id)
     if task is None or not can_see_task(principal, task):
@@ -132,12 +127,6 @@ def cancel_task(session: Session, principal: Principal, task: Task, now: dt.date
         raise Conflict(f"task {task.id} is {task.status}; only an assignable or in-progress task can be cancelled",
                        code="task_not_cancellable")
     withdraw(session, task, now, principal.user_id)
-
-
-def withdraw(session: Session, task: Task, now: dt.datetime, actor_id: int | None) -> None:
-    for aid in repo.withdraw_open(session, task.id, now):
-        repo.record(session, task_id=task.id, entity="assignment", assignment_id=aid, from_status=AssignmentStatus.open,
-                    to_status=AssignmentStatus.withdrawn, actor_id=actor_id, at=now, reason=f"task {task.status}")
 
 
 def add_gold_run(session: Session, settings: Settings, principal: Principal, run: Run, truth_rel: str, *, is_test: bool,
