@@ -1,7 +1,7 @@
 """Map-matching benchmark on two real floors: ``python -m benchmarks.mapmatch [--quick]``.
 
 Floors: site1/F1 and site2/F2 of the Indoor Location Competition 2.0 (two buildings whose
-floor files are laid out differently). Walks: ``$POSEFIX_SHARED_DATA`` (or ../shared/data)
+floor files are laid out differently). Walks: ``$POSEFIX_SHARED_DATA`` when set
 when it holds the floors' walks, else the few walks in the repository's data/ (a fresh
 clone runs on those); the output names the walks it used.
 
@@ -54,11 +54,11 @@ TARGET_MS = 2.0
 
 
 def data_root() -> tuple[Path, str]:
-    """The shared data set when present (both floors with walks), else the repository's data/."""
+    """The full walk set when ``$POSEFIX_SHARED_DATA`` names one (both floors with walks), else
+    the repository's data/: nothing outside the repository is read unless asked for."""
     env = os.environ.get("POSEFIX_SHARED_DATA")
-    shared = Path(env) if env else REPO.parent / "shared" / "data"
-    if all(any((shared / d / "walks").glob("*.txt")) for d in FLOORS.values()):
-        return shared, "shared data set"
+    if env and all(any((Path(env) / d / "walks").glob("*.txt")) for d in FLOORS.values()):
+        return Path(env), "shared data set"
     return REPO / "data", "repository data/ (no shared data set found)"
 
 
