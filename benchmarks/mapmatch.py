@@ -1,7 +1,7 @@
 """Map-matching benchmark on two real floors: ``python -m benchmarks.mapmatch [--quick]``.
 
 Floors: site1/F1 and site2/F2 of the Indoor Location Competition 2.0 (two buildings whose
-floor files are laid out differently). Walks: ``$POSEFIX_SHARED_DATA`` when set
+floor files are laid out differently). Walks: the folder ``$POSEFIX_SHARED_DATA`` names,
 when it holds the floors' walks, else the few walks in the repository's data/ (a fresh
 clone runs on those); the output names the walks it used.
 
