@@ -193,6 +193,18 @@ class TestAccess:
         assert client.delete(f"/api/v1/sessions/{s['session_id']}", headers=users["client"]).status_code == 404
         assert client.post(f"/api/v1/sessions/{s['session_id']}/steps", json=step, headers=users["operator"]).status_code == 200
 
+    def test_access_is_judged_before_the_body(self, app, client, users):
+        """Another user's session is absent whatever the body: a 422 would tell it exists."""
+        fp = ready_floor(app, client, users)
+        sid = client.post(f"/api/v1/floorplans/{fp['id']}/sessions", json={}, headers=users["operator"]).json()["session_id"]
+        for bad in ({}, {"steps": "x"}, {"steps": [{"t_ms": "soon"}]}):
+            r = client.post(f"/api/v1/sessions/{sid}/steps", json=bad, headers=users["client"])
+            assert r.status_code == 404 and r.json()["error"] == "session_not_found", r.text
+            assert client.post(f"/api/v1/sessions/{sid}/steps", json=bad).status_code == 401
+            assert client.post(f"/api/v1/sessions/{sid}/steps", json=bad, headers=users["operator"]).status_code == 422
+        r = client.post("/api/v1/sessions/no-such-session/steps", json={}, headers=users["operator"])
+        assert r.status_code == 404 and r.json()["error"] == "session_not_found"
+
 
 class TestWalkTracking:
     def test_track_returns_tracks_ellipses_and_waypoint_errors(self, app, client, users):

@@ -179,3 +179,27 @@ def test_bad_truth_file_is_refused_and_nothing_kept(env: Env, tmp_path: Path) ->
     assert r.status_code == 422 and r.json()["error"] == "invalid_truth" and "truth.csv" in r.json()["detail"]
     assert env.client("admin").get("/api/v1/gold-runs").json() == []
     assert not (env.settings.files_dir / "gold").exists()
+
+
+def test_eligibility_hides_tasks_the_operator_may_not_see(env: Env) -> None:
+    """An operator learns of live tasks from the queue; a finished one they never worked on
+    answers exactly as a task that does not exist."""
+    run_a, run_b = env.import_run("drive-a", seed=31), env.import_run("drive-b", seed=32)
+    env.add_user("op1", "operator")
+    env.add_user("op2", "operator")
+    admin = env.client("admin")
+    worked = admin.post("/api/v1/tasks", json=task_body([run_a], assignments_per_run=1)).json()["id"]
+    assert _next(env, "op1")["assignment"]["task_id"] == worked
+    unseen = admin.post("/api/v1/tasks", json=task_body([run_b], assignments_per_run=1)).json()["id"]
+    assert env.client("op2").get(f"/api/v1/tasks/{unseen}/eligibility").status_code == 200  # live: the queue names it
+    for task_id in (worked, unseen):
+        assert admin.post(f"/api/v1/tasks/{task_id}/cancel").status_code == 200
+    absent = env.client("op2").get("/api/v1/tasks/999999/eligibility")
+    assert absent.status_code == 404
+    for who, task_id in (("op2", unseen), ("op2", worked), ("op1", unseen)):
+        r = env.client(who).get(f"/api/v1/tasks/{task_id}/eligibility")
+        assert (r.status_code, r.json()["error"]) == (404, absent.json()["error"]), (who, task_id)
+        assert r.json()["detail"] == absent.json()["detail"].replace("999999", str(task_id))
+    assert env.client("op1").get(f"/api/v1/tasks/{worked}/eligibility").status_code == 200  # held an assignment
+    assert admin.get(f"/api/v1/tasks/{unseen}/eligibility").status_code == 200
+    assert env.client("reviewer").get(f"/api/v1/tasks/{unseen}/eligibility").status_code == 200

@@ -181,11 +181,19 @@ def create_session(floorplan_id: int, body: SessionCreate, principal: AnyUser, s
     return SessionCreated(session_id=sess.id, floorplan_id=fp.id, expires_in_s=sessions.TTL_S, position=pos)
 
 
+def _own_session(session_id: str, principal: AnyUser) -> sessions.TrackingSession:
+    # A dependency, so it answers 404 before the body is validated: a 422 would tell another
+    # user's session exists.
+    return sessions.SESSIONS.get(session_id, principal.user_id)
+
+
+OwnSession = Annotated[sessions.TrackingSession, Depends(_own_session)]
+
+
 @router.post("/sessions/{session_id}/steps", response_model=StepsOut, responses=responses(401, 403, 404, 409, 415, 422))
-def add_steps(session_id: str, body: StepsIn, principal: AnyUser) -> StepsOut:
+def add_steps(sess: OwnSession, body: StepsIn) -> StepsOut:
     """Feed steps (vectors, or heading + length) or raw sensor batches; one position with its
     1σ ellipse comes back per step, in order."""
-    sess = sessions.SESSIONS.get(session_id, principal.user_id)
     with sess.lock:
         if body.steps:
             t, vec = sessions.step_vectors(sess.model, body.steps)

@@ -133,9 +133,7 @@ async def task_events(
 @router.get("/tasks/{task_id}/eligibility", responses=responses(401, 404))
 def task_eligibility(task_id: int, principal: OperatorUser, session: SessionDep) -> dict[str, Any]:
     """Whether you qualify for this task, and if not, why (in words)."""
-    task = session.get(Task, task_id)
-    if task is None or task.is_test:
-        raise NotFound(f"task {task_id} not found", code="task_not_found")
+    task = lifecycle.get_offered_task(session, principal, task_id, clock.now())
     reasons = ops.eligibility(session, principal.user_id, task)
     return {"task_id": task_id, "eligible": not reasons, "reasons": reasons}
 

@@ -102,6 +102,18 @@ def get_task(session: Session, principal: Principal, task_id: int) -> Task:
     return task
 
 
+def get_offered_task(session: Session, principal: Principal, task_id: int, now: dt.datetime) -> Task:
+    """A task whose eligibility the caller may ask: one they may see, one the queue offers
+    (its ineligible list names live tasks), or one they held an assignment on. Any other
+    answers as absent, so the route tells nothing of tasks that are not offered."""
+    task = session.get(Task, task_id)
+    if task is None or task.is_test or not (
+            can_see_task(principal, task) or repo.is_offered(task, now)
+            or repo.has_assignment_on(session, principal.user_id, task.id)):
+        raise NotFound(f"task {task_id} not found", code="task_not_found")
+    return task
+
+
 def can_see_task(principal: Principal, task: Task) -> bool:
     if principal.role in (Role.admin, Role.reviewer):
         return True

@@ -152,6 +152,16 @@ def active_leases(session: Session, user_id: int) -> int:
     ) or 0)
 
 
+def is_offered(task: Task, at: dt.datetime) -> bool:
+    """The task is live: the queue may name it to any operator."""
+    return task.status in ACTIVE_TASK and not task.is_test and task.expires_at > at
+
+
+def has_assignment_on(session: Session, user_id: int, task_id: int) -> bool:
+    stmt = select(Assignment.id).where(Assignment.task_id == task_id, Assignment.operator_id == user_id).limit(1)
+    return session.scalar(stmt) is not None
+
+
 def candidate_tasks(session: Session, user_id: int, at: dt.datetime) -> list[Task]:
     """Live tasks with an open slot on a run this operator has never had."""
     mine = aliased(Assignment)
