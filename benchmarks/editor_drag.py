@@ -30,7 +30,7 @@ from tests.e2e.helpers import keyframe_px, login  # noqa: E402
 from tests.e2e.serverkit import chromium, ensure_frontend_built, running_server  # noqa: E402
 
 BUDGET_MS = 1000 / 60
-RULES = "[rules]\nevery_n = 1\nlock_n = 0\nmax_move_m = 0.0\n"
+RULES = "[rules]\nevery_n = 1\nlock_n = 0\nmax_move_m = 10000.0\n"
 
 # One recorder at a time: a generation number stops the previous loop for good.
 RECORD = """() => { const gen = (window.__gen || 0) + 1; window.__gen = gen; const frames = window.__frames = [];

@@ -52,17 +52,17 @@ describe("rules", () => {
   it("order reversal is refused or flagged per order_rule", () => {
     const reported: [number, number][] = Array.from({ length: 10 }, (_, k) => [k * 10, 0]);
     const moves = [{ index: 2, east_m: 25, north_m: 0 }, { index: 6, east_m: 20, north_m: 0 }];
-    const refuse = checkEdits({ ...RULES, max_move_m: 0 }, reported, moves);
+    const refuse = checkEdits({ ...RULES, max_move_m: 10000 }, reported, moves);
     expect(refuse.refusals.map((x) => [x.index, x.reason])).toEqual([[6, "order_reversed"]]);
     expect(refuse.accepted.map((m) => m.index)).toEqual([2]);
-    const flag = checkEdits({ ...RULES, max_move_m: 0, order_rule: "flag" }, reported, moves);
+    const flag = checkEdits({ ...RULES, max_move_m: 10000, order_rule: "flag" }, reported, moves);
     expect(flag.refusals).toEqual([]);
     expect(flag.flags.map((x) => [x.index, x.reason])).toEqual([[6, "order_reversed"]]);
     expect(flag.accepted.map((m) => m.index)).toEqual([2, 6]);
   });
-  it("max_move_m 0 means no limit", () => {
+  it("max_move_m is always a limit (there is no 'unlimited')", () => {
     const r = checkEdits({ ...RULES, max_move_m: 0 }, [[0, 0], [10, 0]], [{ index: 0, east_m: 0, north_m: 5000 }]);
-    expect(r.refusals).toEqual([]);
+    expect(r.refusals.map((x) => x.reason)).toEqual(["too_far"]);
   });
   it("formats limits like Python's :g", () => {
     expect(formatG(30)).toBe("30");

@@ -28,7 +28,7 @@ def kf_coords(client, h, rid, revision=None):
 
 
 def set_rules(app, rid, **rules):
-    base = {"every_n": 1, "lock_n": 0, "lock_direction": "forward", "max_move_m": 0.0, "order_rule": "flag", "deleted": "remove"}
+    base = {"every_n": 1, "lock_n": 0, "lock_direction": "forward", "max_move_m": 10000.0, "order_rule": "flag", "deleted": "remove"}
     with app.state.db.transaction() as s:
         s.execute(update(Run).where(Run.id == rid).values(rules={**base, **rules}))
 

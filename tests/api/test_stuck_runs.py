@@ -145,3 +145,48 @@ def test_a_dead_revision_job_rolls_the_run_back_then_retry_or_discard(client, us
     assert r.status_code == 202 and r.json()["revision"] == 2, r.text
     assert wait_job(app, r.json()["job_id"])["status"] == "succeeded"
     assert client.get(f"/api/v1/runs/{rid}/revisions/2", headers=admin).json()["batch_id"] == r.json()["batch_id"]
+
+
+def test_a_correction_whose_altitudes_leave_the_input_is_refused(client, users, app):
+    """Rules stored before settings were bounded (max_move_m far beyond 10 km) cannot export a
+    lifted run: the preview answers 422 and the revision job fails at once, naming the rule."""
+    from tests.api.test_edits import set_rules
+
+    rid, feats = _run(client, users, 120)
+    set_rules(app, rid, max_move_m=1e9)
+    lon, lat = feats[6]["geometry"]["coordinates"]
+    move = {"index": 6, "lon": lon + 10.0, "lat": lat}  # 10 degrees of longitude: 553 km
+    r = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": [move]}, headers=users["admin"])
+    assert "altitude" in _refused(r, "altitude_out_of_range")[0]["message"]
+    r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": [move]}, headers=users["admin"])
+    assert r.status_code == 202, r.text
+    job = wait_job(app, r.json()["job_id"])
+    assert job["status"] == "dead" and job["attempts"] == 1  # permanent: solving again gives the same answer
+    run = client.get(f"/api/v1/runs/{rid}", headers=users["admin"]).json()
+    assert run["head_revision"] == 0 and run["failed_edit"]["status"] == "failed"
+    assert "outside the" in run["failed_edit"]["error"] and "altitude" in run["failed_edit"]["error"]
+    # a move the input allows still goes through on the same run
+    near = {"index": 6, "lon": lon + 8 * METRE_LON, "lat": lat}
+    ok = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": [near]}, headers=users["admin"])
+    assert ok.status_code == 202 and wait_job(app, ok.json()["job_id"])["status"] == "succeeded"
+
+
+def test_max_move_is_a_finite_setting(client, users, tmp_path):
+    """A task's rules and the engine's config file take 1 m to 10 km; there is no 'unlimited'."""
+    from posefix.core.config import ConfigError, CorrectionConfig
+
+    rid, _ = _run(client, users, 30)
+    body = {"title": "t", "run_ids": [rid]}
+    for bad in (0.0, 0.5, 10_001.0):
+        r = client.post("/api/v1/tasks", json={**body, "rules": {"max_move_m": bad}}, headers=users["admin"])
+        assert r.status_code == 422 and "max_move_m" in r.text, (bad, r.text)
+        path = tmp_path / "engine.toml"
+        path.write_text(f"[rules]\nmax_move_m = {bad}\n")
+        try:
+            CorrectionConfig.load(path)
+        except ConfigError as exc:
+            assert "rules.max_move_m" in str(exc) and "between 1 and 10000" in str(exc)
+        else:
+            raise AssertionError(f"max_move_m = {bad} was accepted")
+    r = client.post("/api/v1/tasks", json={**body, "rules": {"max_move_m": 10_000.0}}, headers=users["admin"])
+    assert r.status_code == 201, r.text

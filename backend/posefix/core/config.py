@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from posefix.core.rules import EditRules
+from posefix.core.rules import MAX_MOVE_LIMIT_M, MIN_MOVE_LIMIT_M, EditRules
 
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.toml")
 
@@ -102,6 +102,7 @@ _CHOICES = {
     ("rules", "order_rule"): ("refuse", "flag"),
     ("rules", "deleted"): ("remove", "flag"),
 }
+_RANGES = {("rules", "max_move_m"): (MIN_MOVE_LIMIT_M, MAX_MOVE_LIMIT_M)}
 _POSITIVE = {
     ("location", "sigma_h_m"), ("location", "sigma_v_m"), ("location", "loss_scale"),
     ("user", "sigma_h_m"), ("user", "sigma_v_m"), ("gravity", "sigma"),
@@ -187,6 +188,9 @@ def _check_value(section: str, key: str, value: Any, default: Any, source: str, 
     if choices and value not in choices:
         raise ConfigError(source, line, name, f"must be one of {', '.join(choices)}; got {value!r}")
     if isinstance(value, (int, float)) and not isinstance(value, bool):
+        bounds = _RANGES.get((section, key))
+        if bounds and not bounds[0] <= value <= bounds[1]:
+            raise ConfigError(source, line, name, f"must be between {bounds[0]:g} and {bounds[1]:g}, got {value}")
         if (section, key) in _POSITIVE and value <= 0:
             raise ConfigError(source, line, name, f"must be > 0, got {value}")
         if value < 0:

@@ -16,7 +16,7 @@ Rules, applied in this order to the moves sorted by keyframe index:
 5. ``locked``         the keyframe lies within ``lock_n`` keyframes after (``forward``) or
                       on either side of (``both``) an earlier-edited keyframe or an accepted
                       move of this batch with a lower index (moves are taken in index order);
-6. ``too_far``        the move is longer than ``max_move_m`` (0 = no limit);
+6. ``too_far``        the move is longer than ``max_move_m`` (always finite, see below);
 7. ``order_reversed`` between two consecutive moved keyframes i < j (earlier edits
                       included) the corrected chord c_j - c_i points backwards along the
                       reported chord p_j - p_i (dot product <= 0; chords shorter than 1 m are
@@ -34,7 +34,11 @@ each side of every sample; the reason is ``too_few_keyframes``.
 jump by a few hundred at worst, so a longer drag is a slip of the mouse, not a correction.
 Beyond it the local tangent plane the solver works in no longer fits the Earth: a
 horizontal move of d metres lifts the point by about d^2 / (2 R) (0.08 m at 1 km, 24 km at
-the 550 km of a 10 degree drag), and that lift reaches the exported altitudes.
+the 550 km of a 10 degree drag), and that lift reaches the exported altitudes. There is no
+"unlimited": settings (a task's rules, the engine's config file) take 1 m to
+``MAX_MOVE_LIMIT_M`` (10 km, where the lift is 7.8 m, within the vertical error of a GNSS
+fix), and ``engine.altitude`` refuses any solution whose altitudes leave what the input and
+the edits allow.
 """
 
 from __future__ import annotations
@@ -54,6 +58,8 @@ REASONS = (
 )
 MIN_CHORD_M = 1.0
 MIN_KEYFRAMES = 2
+MIN_MOVE_LIMIT_M = 1.0  # the range a setting of max_move_m may take (see the module docstring)
+MAX_MOVE_LIMIT_M = 10_000.0
 TOO_FEW_KEYFRAMES = "too_few_keyframes"  # the reason of ``keyframes_left`` (deletions, not moves)
 
 
@@ -64,7 +70,7 @@ class EditRules:
     every_n: int = 1
     lock_n: int = 0
     lock_direction: str = "forward"  # "forward" | "both"
-    max_move_m: float = 1000.0  # 0 = unlimited (see the module docstring for the default)
+    max_move_m: float = 1000.0  # MIN_MOVE_LIMIT_M .. MAX_MOVE_LIMIT_M (see the module docstring)
     order_rule: str = "flag"  # "refuse" | "flag"
     deleted: str = "remove"  # "remove" | "flag"
 
@@ -228,14 +234,13 @@ def _first_refusal(rules, reported, move, k, seen, deleted_set, adjustable, lock
         return Refusal(
             i, "locked", f"Keyframe {i} is locked: it lies within {rules.lock_n} keyframes of an edited keyframe."
         )
-    if rules.max_move_m > 0:
-        distance_m = float(np.hypot(move.east_m - reported[i, 0], move.north_m - reported[i, 1]))
-        if distance_m > rules.max_move_m:
-            return Refusal(
-                i,
-                "too_far",
-                f"Keyframe {i} would move {distance_m:.1f} m; the limit is {rules.max_move_m:g} m.",
-            )
+    distance_m = float(np.hypot(move.east_m - reported[i, 0], move.north_m - reported[i, 1]))
+    if distance_m > rules.max_move_m:
+        return Refusal(
+            i,
+            "too_far",
+            f"Keyframe {i} would move {distance_m:.1f} m; the limit is {rules.max_move_m:g} m.",
+        )
     return None
 
 

@@ -25,6 +25,7 @@ from posefix.db import Database
 from posefix.edits import failures
 from posefix.edits import repository as edits_repo
 from posefix.edits.service import REVISION_JOB
+from posefix.engine import EditRefusedError
 from posefix.jobs.models import Job, JobStatus
 from posefix.jobs.registry import JobContext, PermanentJobError, register, register_cleanup
 from posefix.core.geodesy import horizontal_distance_m
@@ -94,7 +95,10 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
         return pose, cfg
 
     ctx.progress(0.2, "optimising keyframes")
-    problem, sol = solutions.solve_revision(settings, run_id, rules, prev_number, edit_set, load)
+    try:
+        problem, sol = solutions.solve_revision(settings, run_id, rules, prev_number, edit_set, load)
+    except EditRefusedError as exc:  # the correction itself is refused: solving again gives the same answer
+        raise PermanentJobError(exc.refusals[0].message) from None
     ctx.progress(0.6, "propagating to every sample")
     corr = problem.full_run(sol)
     lon, lat, alt = problem.lonlatalt(sol)

@@ -21,7 +21,7 @@ from posefix.edits import repository as edits_repo
 from posefix.edits.models import EditBatch
 from posefix.edits.schemas import MoveIn
 from posefix.core.geodesy import horizontal_distance_m
-from posefix.engine import Edit, Edits
+from posefix.engine import Edit, EditRefusedError, Edits
 from posefix.engine.edits import check_batch
 from posefix.core.rules import keyframes_left
 from posefix.errors import BadRequest, Conflict, NotFound, Unprocessable
@@ -79,8 +79,12 @@ def preview(session: Session, settings: Settings, run: Run, base_revision: int, 
     too_few = keyframes_left(k, list(base.get("deleted", [])) + [d for d in deleted if 0 <= d < k], [d for d in deleted if 0 <= d < k])
     if too_few:  # nothing to show: the run would have no track left
         raise Unprocessable(too_few[0].message, code="edit_refused", extra={"refusals": [r.to_json() for r in too_few]})
-    pv, base_solved = solutions.preview(run.id, run.rules, base_revision, problem, base,
-                                        stored_solution(settings, run, keyframes_file), _moves(moves), deleted)
+    try:
+        pv, base_solved = solutions.preview(run.id, run.rules, base_revision, problem, base,
+                                            stored_solution(settings, run, keyframes_file), _moves(moves), deleted)
+    except EditRefusedError as exc:  # the solution itself is refused (altitude_out_of_range): nothing to show
+        raise Unprocessable(exc.refusals[0].message, code="edit_refused",
+                            extra={"refusals": [r.to_json() for r in exc.refusals]}) from None
     return {
         "base_revision": base_revision,
         "positions": np.round(np.stack([pv.lon_deg, pv.lat_deg], axis=1), 8),

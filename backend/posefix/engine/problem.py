@@ -41,6 +41,7 @@ from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
 from posefix.core.solver import solve_banded
 from posefix.core.solver_reference import solve
+from posefix.engine.altitude import altitude_band, altitude_refusal
 from posefix.engine.calibrate import Calibration
 from posefix.engine.choose import solve_calibrated
 from posefix.engine.edits import Edit, Edits, targets_enu
@@ -460,8 +461,10 @@ class Problem:
         index, edit_kf, c_m, has_alt, deleted_kf = self._resolve_edit_set(edits)
         flags = self._check_rules(index, edit_kf, c_m, deleted_kf)
         if local:
-            return self.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags, local=True)
-        return solve_calibrated(self, index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags)
+            sol = self.solve_rows(index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags, local=True)
+        else:
+            sol = solve_calibrated(self, index, edit_kf, c_m, has_alt, deleted_kf, warm_start, flags)
+        return self.checked_altitudes(sol, [m.alt_m for m in edits.moves] if edits else [])
 
     def _resolve_edit_set(self, edits):
         from posefix.io.edits import EditSet, match_edits
@@ -497,8 +500,20 @@ class Problem:
         args = (self.keyframe_index, edits.index, targets_enu(self, edits.moves), edits.has_alt,
                 np.array(edits.deleted, dtype=np.int64), warm_start, list(edits.flags))
         if local or drift is not None:
-            return self.solve_rows(*args, local=local, drift=drift)
-        return solve_calibrated(self, *args)
+            sol = self.solve_rows(*args, local=local, drift=drift)
+        else:
+            sol = solve_calibrated(self, *args)
+        return self.checked_altitudes(sol, [m.alt_m for m in edits.moves])
+
+    def checked_altitudes(self, sol: Solution, edit_alt_m) -> Solution:
+        """``sol``, or ``EditRefusedError`` (``altitude_out_of_range``) when a corrected keyframe's
+        altitude leaves what the input and the edits' altitudes (None: a 2-D move) allow."""
+        alts = np.array([a for a in edit_alt_m if a is not None], dtype=float)
+        band = altitude_band(self.run, alts, self.cfg)
+        refusal = altitude_refusal(self.lonlatalt(sol)[2], band, sol.active)
+        if refusal is not None:
+            raise EditRefusedError([refusal])
+        return sol
 
     def preview(self, moves: list[Edit], deleted=(), base_edits: Edits | None = None,
                 base: Solution | None = None, warm_start=None) -> Preview:

@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from posefix.core.rules import EditRules
+from posefix.core.rules import MAX_MOVE_LIMIT_M, MIN_MOVE_LIMIT_M, EditRules
 from posefix.edits.schemas import MoveIn, RefusalOut
 from posefix.tasks.models import AssignmentStatus, ConflictPolicy, TaskRunStatus, TaskStatus
 from posefix.tasks.qualification import validate_requirement
@@ -19,7 +19,8 @@ class RulesIn(BaseModel):
     every_n: int = Field(default=1, ge=1, le=1000)
     lock_n: int = Field(default=0, ge=0, le=1000)
     lock_direction: Literal["forward", "both"] = "forward"
-    max_move_m: float = Field(default=EditRules().max_move_m, ge=0, le=10000, description="0 = unlimited")
+    max_move_m: float = Field(default=EditRules().max_move_m, ge=MIN_MOVE_LIMIT_M, le=MAX_MOVE_LIMIT_M,
+                              description="longest move of a keyframe, metres (always finite: a far move is a slip)")
     order_rule: Literal["refuse", "flag"] = "flag"
     deleted: Literal["remove", "flag"] = "remove"
 

@@ -2210,7 +2210,7 @@ export interface components {
             lock_n?: number;
             /**
              * Max Move M
-             * @description 0 = unlimited
+             * @description longest move of a keyframe, metres (always finite: a far move is a slip)
              * @default 1000
              */
             max_move_m?: number;

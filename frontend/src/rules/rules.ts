@@ -14,7 +14,7 @@
  * 5. locked         within `lock_n` keyframes after ("forward") or on either side of ("both")
  *                   an earlier-edited keyframe or an accepted move of this batch with a
  *                   lower index;
- * 6. too_far        the move is longer than `max_move_m` (0 = no limit);
+ * 6. too_far        the move is longer than `max_move_m` (always finite: see core/rules.py);
  * 7. order_reversed between two consecutive moved keyframes i < j (earlier edits included)
  *                   the corrected chord c_j - c_i points backwards along the reported chord
  *                   (dot <= 0; chords shorter than 1 m are not judged). "refuse" refuses the
@@ -177,11 +177,9 @@ function firstRefusal(
   if (locked.has(i)) {
     return { index: i, reason: "locked", message: `Keyframe ${i} is locked: it lies within ${rules.lock_n} keyframes of an edited keyframe.` };
   }
-  if (rules.max_move_m > 0) {
-    const distanceM = Math.hypot(move.east_m - reported[i][0], move.north_m - reported[i][1]);
-    if (distanceM > rules.max_move_m) {
-      return { index: i, reason: "too_far", message: `Keyframe ${i} would move ${distanceM.toFixed(1)} m; the limit is ${formatG(rules.max_move_m)} m.` };
-    }
+  const distanceM = Math.hypot(move.east_m - reported[i][0], move.north_m - reported[i][1]);
+  if (distanceM > rules.max_move_m) {
+    return { index: i, reason: "too_far", message: `Keyframe ${i} would move ${distanceM.toFixed(1)} m; the limit is ${formatG(rules.max_move_m)} m.` };
   }
   return null;
 }

@@ -13,7 +13,7 @@ export interface EditRules {
   lock_n: number;
   /** Which neighbours an edit locks: those after it, or on both sides. */
   lock_direction: "forward" | "both";
-  /** A keyframe may be moved at most this far from its reported position (m); 0 = no limit. */
+  /** A keyframe may be moved at most this far from its reported position (m); always finite (1 m to 10 km). */
   max_move_m: number;
   /** A move that reverses the order of poses: "refuse" it, or accept it with a "flag". */
   order_rule: "refuse" | "flag";

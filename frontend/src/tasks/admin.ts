@@ -43,7 +43,7 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
   const everyN = numberInput("every_n", 1, { min: 1, "aria-label": "Every Nth keyframe adjustable" });
   const lockN = numberInput("lock_n", 0, { min: 0, "aria-label": "Lock N after a move" });
   const lockDir = h("select", { "aria-label": "Lock direction" }, h("option", { value: "forward" }, "forward"), h("option", { value: "both" }, "both"));
-  const maxMove = numberInput("max_move", 0, { min: 0, step: "any", "aria-label": "Maximum move (m, 0 = none)" });
+  const maxMove = numberInput("max_move", 1000, { min: 1, max: 10000, step: "any", "aria-label": "Maximum move (m, 1 to 10,000)" });
   const orderRule = h("select", { "aria-label": "Order rule" }, h("option", { value: "flag" }, "flag"), h("option", { value: "refuse" }, "refuse"));
   const reqRows = h("div", { class: "reqs" });
   const addReq = h("button", { type: "button" }, "+ requirement");
