@@ -47,6 +47,7 @@ import numpy as np
 from posefix.core import geodesy
 from posefix.core import rotations as rot
 from posefix.core import terms as T
+from posefix.core.config import CalibrationConfig
 from posefix.core.propagate import propagate_corrections
 from posefix.core.simulate import REGIMES, simulate
 from posefix.core.solver import solve_banded
@@ -325,10 +326,13 @@ def bench_propagation(seed: int = 10):
     return dict(n=sim.run.n, k=len(kfs), t_prop=t_prop, t_full=t_full)
 
 
-def plain_gtsam_keyframes(problem, sol, cfg: CorrectionConfig):
-    """The standard GTSAM graph (no drift model) on posefix's keyframes; returns (k,3) positions and quats."""
+def plain_gtsam_keyframes(problem, sim, cfg: CorrectionConfig):
+    """The standard GTSAM graph (no drift model, no edit bends) on posefix's keyframes, its edits
+    and relative terms as posefix's plain model measures them (whatever model the run chose);
+    returns the solution it was built on, (k,3) positions and quats."""
     import dataclasses
 
+    sol = prepare(sim.run, dataclasses.replace(cfg, calibration=CalibrationConfig(model="plain"))).solve(edit_set(sim))
     terms = sol.terms
     g = problem.g_enu_m if problem.g_enu_m is not None else problem.p_enu_m
     rows = sol.keyframes.index[sol.active]
@@ -343,7 +347,7 @@ def plain_gtsam_keyframes(problem, sol, cfg: CorrectionConfig):
     values, _ = gtsam_lm(graph, initial)
     x = gtsam_state(plain, values).reshape(-1, 6)
     q = rot.quat_multiply(rot.matrix_to_quat(terms.R_rep), rot.exp_quat(x[:, 3:]))
-    return x[:, :3], q
+    return sol, x[:, :3], q
 
 
 def naive_positions(problem, sim) -> np.ndarray:
@@ -371,9 +375,9 @@ def bench_accuracy(spacings, regimes, duration_s: float, seed: int = 11, plot_di
             p_pf = geodesy.geodetic_to_enu(corrected.run.lat_deg, corrected.run.lon_deg, corrected.run.alt_m,
                                            problem.origin)
             p_naive = naive_positions(problem, sim)
-            kp, kq = plain_gtsam_keyframes(problem, sol, cfg)
-            rows_act = sol.keyframes.index[sol.active]
-            c_kf = rot.quat_multiply(kq, rot.quat_conjugate(sol.keyframes.reported_q_wxyz[sol.active]))
+            sol_p, kp, kq = plain_gtsam_keyframes(problem, sim, cfg)
+            rows_act = sol_p.keyframes.index[sol_p.active]
+            c_kf = rot.quat_multiply(kq, rot.quat_conjugate(sol_p.keyframes.reported_q_wxyz[sol_p.active]))
             p_gt, _, _ = propagate_corrections(sim.run.t_s, problem.p_enu_m, rows_act, kp, c_kf, "distance",
                                             problem.along_m)
             rows.append(dict(regime=regime, every=every, input=h_rmse(problem.p_enu_m, truth),

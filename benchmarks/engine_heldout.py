@@ -94,9 +94,9 @@ def score(sim: Simulation) -> dict:
     sol = problem.solve(edit_set(sim))
     corrected = problem.full_run(sol)
     p_pf = geodesy.geodetic_to_enu(corrected.run.lat_deg, corrected.run.lon_deg, corrected.run.alt_m, problem.origin)
-    kp, kq = plain_gtsam_keyframes(problem, sol, cfg)
-    rows_act = sol.keyframes.index[sol.active]
-    c_kf = rot.quat_multiply(kq, rot.quat_conjugate(sol.keyframes.reported_q_wxyz[sol.active]))
+    sol_p, kp, kq = plain_gtsam_keyframes(problem, sim, cfg)
+    rows_act = sol_p.keyframes.index[sol_p.active]
+    c_kf = rot.quat_multiply(kq, rot.quat_conjugate(sol_p.keyframes.reported_q_wxyz[sol_p.active]))
     p_gt, _, _ = propagate_corrections(sim.run.t_s, problem.p_enu_m, rows_act, kp, c_kf, "distance", problem.along_m)
     cal = getattr(sol.drift, "calibration", None)
     return dict(case=sim.regime, n_edits=len(sim.edits), input=h_rmse(problem.p_enu_m, truth),

@@ -13,6 +13,7 @@ from posefix.core.simulate import simulate
 from posefix.core.solver import solve_banded
 from posefix.engine import CorrectionConfig, prepare
 from posefix.engine.calibrate import ProcessFit, best_process, fit_processes, loo_residuals, variogram
+from posefix.engine.naive import naive_held_out
 from posefix.io.edits import EditSet, Move
 
 
@@ -95,3 +96,29 @@ def test_one_edit_moves_a_ten_minute_run_only_near_the_edit():
     dt = np.abs(sim.run.t_s - sim.run.t_s[i])
     assert moved[i] > 6.0  # the edited sample follows the edit (7.2 m)
     assert moved[dt > 180.0].max() < 0.1 * moved[i]  # three minutes away the run stays where it was
+
+
+def test_naive_candidate_is_naive_interpolation_and_its_held_out_residuals_equal_refitting():
+    sim = simulate(duration_s=900.0, rate_hz=2.0, edit_every_s=100.0, seed=5, regime="canyon")
+    naive_cfg = CorrectionConfig.from_dict({"calibration": {"model": "naive"}})
+    problem = prepare(sim.run, naive_cfg)
+    rows = np.array([e.index for e in sim.edits])
+    c = problem.to_enu([e.lon_deg for e in sim.edits], [e.lat_deg for e in sim.edits], sim.run.alt_m[rows])
+    sol = problem.solve(_edits(sim))
+    assert sol.drift.calibration.model == "naive" and sol.solver.method == "naive"
+    kf = sol.keyframes
+    off = c - problem.p_enu_m[rows]
+    for j in range(2):
+        want = kf.reported_p_enu_m[:, j] + np.interp(kf.t_s, sim.run.t_s[rows], off[:, j])
+        assert np.max(np.abs(kf.p_enu_m[:, j] - want)) < 1e-9
+    assert np.array_equal(kf.q_wxyz, kf.reported_q_wxyz)
+    # leave-one-out in closed form = solving naive again without the edit
+    t_e, y = sim.run.t_s[rows], (problem.p_enu_m[rows] - c)[:, :2]
+    picks = np.arange(len(rows))
+    r = naive_held_out(t_e, y, picks)
+    for k in picks:
+        keep = np.arange(len(rows)) != k
+        moves = [Move(e.t_s, e.lat_deg, e.lon_deg, None) for i, e in enumerate(sim.edits) if keep[i]]
+        s = problem.solve(EditSet(moves=moves))
+        at = int(np.searchsorted(s.keyframes.index, rows[k]))
+        assert np.allclose(s.keyframes.p_enu_m[at, :2] - c[k, :2], r[k], atol=1e-6)

@@ -153,8 +153,10 @@ def test_preview_answers_at_keyframe_level_with_warm_start():
 def test_scipy_reference_path_gives_the_same_correction():
     sim = simulate(duration_s=120.0, rate_hz=5.0, edit_every_s=40.0, seed=3, regime="mixed")
     edits = EditSet(moves=[Move(e.t_s, e.lat_deg, e.lon_deg, None) for e in sim.edits])
-    fast = correct(sim.run, edits)
-    ref = correct(sim.run, edits, CorrectionConfig.from_dict({"solver": {"method": "scipy"}}))
+    # one model: with three edits the held-out choice may tip either way on the solvers' round-off
+    fast = correct(sim.run, edits, CorrectionConfig.from_dict({"calibration": {"model": "gnss"}}))
+    ref = correct(sim.run, edits, CorrectionConfig.from_dict({"solver": {"method": "scipy"},
+                                                              "calibration": {"model": "gnss"}}))
     assert abs(fast.solver.cost - ref.solver.cost) <= 1e-6 * ref.solver.cost
     assert np.max(np.abs(fast.keyframes.p_enu_m - ref.keyframes.p_enu_m)) < 1e-3
 

@@ -96,7 +96,7 @@ class SolverConfig:
 _CHOICES = {
     ("location", "loss"): ("cauchy", "huber", "soft_l1", "none"),
     ("propagation", "mode"): ("distance", "time"),
-    ("calibration", "model"): ("auto", "gnss", "plain", "relative"),
+    ("calibration", "model"): ("auto", "gnss", "plain", "relative", "naive"),
     ("solver", "method"): ("banded", "scipy"),
     ("rules", "lock_direction"): ("forward", "both"),
     ("rules", "order_rule"): ("refuse", "flag"),

@@ -36,28 +36,32 @@ Data, per horizontal axis, at the edit times t_k (sorted): the pose's error at t
 
    A pose that already fused the fix (EKF, GNSS/INS) carries the same error: r_g follows r_e
    and w* falls towards zero (reported as ``gnss_share``).
-4. Model choice by the run's own held-out edits.  The candidates are solved by the engine
-   itself (``Problem.solve_calibrated``): ``gnss`` (the location term with the drift model,
-   the GNSS level model and the edit bends: the calibrated model), ``plain`` (the location
-   term at its configured sigma, no drift model, no bends: GTSAM's standard graph) and
-   ``relative`` (pose plus edits, no location term: naive interpolation's own assumption,
-   solved with the relative terms); without raw GNSS only ``relative``.  Each of up to
-   ``CV_MAX_HELD_OUT`` edits is held out in turn and predicted by a local solve without it
-   (held at the edits either side; the candidate's drift re-estimated without the edit, so
-   the edit cannot vouch for itself).  The calibrated model stands unless another predicts
-   the same held-out edits better by more than their scatter allows (``choose``: a paired
-   gain in squared error above one standard error, from at least eight held-out edits).  With fewer than
-   ``MIN_EDITS`` edits nothing can be held out and the stated prior decides (``prior``: the
-   calibrated model with the drift prior, whose bias fades from each edit over its tau of a
-   minute, so one edit moves the run near it, not the whole run).
-5. Predicted accuracy.  Held-out edits sit where the edits either side leave the most doubt.
-   A model that keeps the pose's shape between edits (relative, gnss) has an error bridged
-   between them, smallest at the edits: the pose process's variance V_i bridged to each
-   keyframe (``drift.bias_at``, observed with the edits' own noise) against its leave-one-out
-   variance at the held-out edits gives f = sqrt(mean_i V_i / mean_k V_loo,k) (a random walk:
-   1/sqrt 3), kept in [0.5, 1]; the predicted RMSE of the run is f times the held-out RMSE and
-   the 1-sigma along the run follows sqrt(V_i) at that RMSE.  The plain location term's
-   error follows the fixes, spread evenly: f = 1.
+4. Model choice by the run's own held-out edits.  The candidates: ``gnss`` (the location
+   term with the drift model, the GNSS level model and the edit bends: the calibrated model),
+   ``plain`` (the location term at its configured sigma, no drift model, no bends: GTSAM's
+   standard graph), ``relative`` (pose plus edits, no location term: naive interpolation's own
+   assumption, solved with the relative terms) and ``naive`` (naive interpolation itself,
+   ``engine.naive``); without raw GNSS only the last two.  Each of up to ``CV_MAX_HELD_OUT``
+   edits is held out in turn and predicted without it (the engine's models by a local solve
+   held at the edits either side, their drift re-estimated without the edit, so the edit
+   cannot vouch for itself; naive by interpolating the others).
+5. Edit spacing.  A held-out edit sits mid-way in a gap twice the edits' spacing; the run's
+   keyframes sit in gaps of one spacing, on average nearer an edit.  A model that keeps the
+   pose's shape between edits (gnss, relative, naive) has an error bridged between them,
+   smallest at the edits: the pose process's variance V_i bridged to each keyframe
+   (``drift.bias_at``, observed with the edits' own noise) against its leave-one-out variance
+   at the held-out edits gives f = sqrt(mean_i V_i / mean_k V_loo,k) (a random walk:
+   1/sqrt 3), kept in [0.5, 1].  The plain location term's error follows the fixes between the
+   edits and is pinned at them: half bridged, s = sqrt(f) (between f and an error spread evenly,
+   1).  Each candidate's run-wide RMSE is predicted as s_m times its held-out RMSE, and the
+   models are compared on that scale (``choose``): the calibrated model stands unless another's
+   paired gain in scaled squared error d_k = s_inc^2 |r_k,inc|^2 - s_m^2 |r_k,m|^2 has a mean
+   above ``SWITCH_Z`` standard errors.  With fewer than ``MIN_EDITS`` edits nothing can be held
+   out and the stated prior decides (``prior``: the calibrated model with the drift prior,
+   whose bias fades from each edit over its tau of a minute, so one edit moves the run near
+   it, not the whole run).
+6. Predicted accuracy: the chosen model's s_m times its held-out RMSE, and the 1-sigma along
+   the run following sqrt(V_i) at that RMSE (flat for plain).
 """
 
 from __future__ import annotations
@@ -71,8 +75,7 @@ from posefix.core.drift import bias_at, smooth_gauss_markov
 
 MIN_EDITS = 3  # fewer: nothing to hold out, the prior decides
 CV_MAX_HELD_OUT = 12  # edits held out one at a time (spread evenly): enough to rank two models
-MIN_SWITCH = 8  # held-out edits needed before another model may replace the calibrated one
-SWITCH_Z = 1.0  # another model replaces the calibrated one when its paired gain on the held-out edits exceeds this many standard errors
+SWITCH_Z = 0.5  # another model replaces the calibrated one when its paired gain on the held-out edits exceeds this many standard errors
 RW_TAU_S = 1e7  # a random walk as a Gauss-Markov process with a correlation time far beyond any run
 TAU_GRID_S = np.geomspace(10.0, 1e4, 31)
 
@@ -97,7 +100,7 @@ class ProcessFit:
 class Calibration:
     """What the run's own edits say: the chosen model and how well it predicts held-out edits.
 
-    model: "relative" | "gnss" | "prior"; cv_rmse_m: leave-one-out horizontal RMSE at the
+    model: "gnss" | "plain" | "relative" | "naive" | "prior"; cv_rmse_m: leave-one-out horizontal RMSE at the
     edits of the chosen model (NaN with fewer than MIN_EDITS); cv_rmse_by_model: each
     candidate's; predicted_rmse_m: the run-wide RMSE the scaled model predicts; gnss_share:
     w* (section 3); sigma_m (k,): horizontal 1-sigma of the correction per keyframe.
@@ -227,11 +230,11 @@ def prior_calibration(n_edits: int) -> Calibration:
 
 
 def candidates(model: str, has_gnss: bool) -> tuple[str, ...]:
-    """The models to score: all three with raw GNSS under "auto"; without it the location term
-    would pull towards the reported pose itself, so only the relative model; a forced model alone."""
+    """The models to score: all four with raw GNSS under "auto"; without it the location term
+    would pull towards the reported pose itself, so only relative and naive; a forced model alone."""
     if model != "auto":
         return (model,)
-    return ("gnss", "plain", "relative") if has_gnss else ("relative",)
+    return ("gnss", "plain", "relative", "naive") if has_gnss else ("relative", "naive")
 
 
 def held_out_picks(m: int, n_max: int) -> np.ndarray:
@@ -239,62 +242,65 @@ def held_out_picks(m: int, n_max: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, m - 1, min(n_max, m))).astype(np.int64))
 
 
-def choose(residuals: dict[str, np.ndarray]) -> str:
+def model_scale(model: str, f: float) -> float:
+    """Run-wide RMSE over held-out RMSE of a model (module docstring 5): f bridged, sqrt(f) plain."""
+    return float(np.sqrt(f)) if model == "plain" else f
+
+
+def choose(residuals: dict[str, np.ndarray], f: float) -> str:
     """The model the held-out edits choose from each candidate's held-out residuals (n,2).
 
-    The calibrated model (``gnss``: the location term with the drift model; without GNSS the
-    pose and edits alone) stands unless another predicts the same held-out edits better by
-    more than their scatter allows: the paired gain d_k = |r_k,inc|^2 - |r_k,other|^2 must
-    have a mean above ``SWITCH_Z`` standard errors, with at least ``MIN_SWITCH`` edits held
-    out, so a handful of edits, or one lucky stretch, cannot swap models on chance.
+    The calibrated model (``gnss``; without GNSS ``relative``) stands unless another predicts
+    the same held-out edits better, on the run-wide scale (``model_scale``), by more than their
+    scatter allows: the paired gain d_k = s_inc^2 |r_k,inc|^2 - s_m^2 |r_k,m|^2 must have a
+    mean above ``SWITCH_Z`` standard errors.
     """
-    incumbent = "gnss" if "gnss" in residuals else next(iter(residuals))
-    if len(residuals[incumbent]) < MIN_SWITCH:
-        return incumbent  # too few held out to tell models apart (six edits swapped canyon runs onto the plain model)
-    e_inc = np.sum(residuals[incumbent] ** 2, axis=1)
-    best, best_mse = incumbent, float(np.mean(e_inc))
-    for name, r in residuals.items():
+    incumbent = "gnss" if "gnss" in residuals else "relative" if "relative" in residuals else next(iter(residuals))
+    err = {name: model_scale(name, f) ** 2 * np.sum(r**2, axis=1) for name, r in residuals.items()}
+    best, best_mse = incumbent, float(np.mean(err[incumbent]))
+    for name, e in err.items():
         if name == incumbent:
             continue
-        e = np.sum(r**2, axis=1)
-        d = e_inc - e
+        d = err[incumbent] - e
         se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else np.inf
         if float(np.mean(d)) > SWITCH_Z * se and float(np.mean(e)) < best_mse:
             best, best_mse = name, float(np.mean(e))
     return best
 
 
-def calibration_of(model: str, scores: dict[str, float], picks: np.ndarray,
-                   kf_t_s: np.ndarray, y_m: np.ndarray, d_m: np.ndarray | None, edit_t_s: np.ndarray,
-                   edit_sigma_m: float) -> Calibration:
-    """The calibration of the chosen model: processes fitted to the edits (``y_m``, ``d_m``: pose and
-    fix error at the sorted edit times), and the accuracy the chosen model's held-out RMSE (``scores``,
-    from the edits ``picks`` in time order) predicts along the run (module docstring 5)."""
-    m = len(edit_t_s)
+def bridge_ratio(kf_t_s: np.ndarray, edit_t_s: np.ndarray, y_m: np.ndarray, picks: np.ndarray,
+                 edit_sigma_m: float) -> tuple[float, ProcessFit, np.ndarray, np.ndarray]:
+    """f of module docstring 5 from the pose's error at the sorted edits ``y_m`` (m,2), with the
+    pose process, its leave-one-out residuals and the bridged variance along the run (k,)."""
     floor = max(edit_sigma_m**2, 1e-4)
     fit_e, _, r_e, _, _, _ = best_process(edit_t_s, y_m, floor)
     # the band's shape: the fitted process observed with the edits' own noise (the engine holds
     # each edit to its sigma), so V at an edit is what the edits either side leave of it
     _, V_e, xs_e, P_e = loo_residuals(edit_t_s, y_m, dataclasses.replace(fit_e, nugget_m2=floor))
     _, v_run = bias_at(kf_t_s, edit_t_s, xs_e, P_e, fit_e.sigma2_m2, fit_e.tau_s)
+    f = float(np.clip(np.sqrt(np.mean(v_run) / max(float(np.mean(V_e[picks])), 1e-12)), 0.5, 1.0)) if len(picks) else 1.0
+    return f, fit_e, r_e, v_run
+
+
+def calibration_of(model: str, scores: dict[str, float], f: float, bridge: tuple, kf_t_s: np.ndarray,
+                   edit_t_s: np.ndarray, d_m: np.ndarray | None, edit_sigma_m: float) -> Calibration:
+    """The calibration of the chosen model: the pose process and bridge (``bridge_ratio``), the
+    fix's process and share (``d_m``: the fix's error at the sorted edit times), and the accuracy
+    the chosen model's held-out RMSE (``scores``) predicts along the run (module docstring 6)."""
+    _, fit_e, r_e, v_run = bridge
+    floor = max(edit_sigma_m**2, 1e-4)
     gnss_fit, share = None, float("nan")
     if d_m is not None and np.all(np.isfinite(d_m)):
         gnss_fit, _, r_g, _, _, _ = best_process(edit_t_s, d_m, floor)
         diff = r_e - r_g
         den = float(np.sum(diff**2))
         share = float(np.clip(np.sum(r_e * diff) / den, 0.0, 1.0)) if den > 0 else 0.0
-    # held-out edits sit where the edits either side leave the most doubt, the run's keyframes on
-    # average nearer an edit.  A model that keeps the pose's shape between edits (relative, gnss)
-    # has an error bridged between them: its RMSE along the run is the held-out one times the
-    # bridge's ratio f = sqrt(mean_i V_i / mean_k V_loo,k) (a random walk: 1/sqrt 3), kept in
-    # [0.5, 1]; the plain location term's error follows the fixes, spread evenly (f = 1)
     shape = np.sqrt(np.maximum(v_run, 0.0))
-    f = float(np.clip(np.sqrt(np.mean(v_run) / max(float(np.mean(V_e[picks])), 1e-12)), 0.5, 1.0)) if len(picks) else 1.0
-    predicted = scores[model] * (1.0 if model == "plain" else f)
+    predicted = scores[model] * model_scale(model, f)
     if model == "plain" or not np.any(shape > 0):
         sigma_h = np.full(len(kf_t_s), predicted)
     else:
         sigma_h = shape * predicted / float(np.sqrt(np.mean(shape**2)))
     return Calibration(model=model, cv_rmse_m=scores[model], cv_rmse_by_model=dict(scores),
-                       predicted_rmse_m=float(predicted), gnss_share=share, n_edits=m,
+                       predicted_rmse_m=float(predicted), gnss_share=share, n_edits=len(edit_t_s),
                        pose=fit_e, gnss=gnss_fit, sigma_m=sigma_h)

@@ -45,6 +45,7 @@ from posefix.engine.altitude import altitude_band, altitude_refusal
 from posefix.engine.calibrate import Calibration
 from posefix.engine.choose import solve_calibrated
 from posefix.engine.edits import Edit, Edits, targets_enu
+from posefix.engine.naive import naive_solution
 from posefix.engine.results import Correction, EditRefusedError, Preview, Solution
 from posefix.engine.window import solve_window
 
@@ -295,6 +296,8 @@ class Problem:
         calib = calibration
         if calib is None and local and same_rows:
             calib = warm_sol.drift.calibration
+        if calib is not None and calib.model == "naive":
+            return naive_solution(self, index, edit_kf, edit_c_m, edit_has_alt, deleted_kf, flags, calib)
         g, has_fix, g_nan = self._location_measurements(act_rows)
         if not remove and np.any(deleted):
             has_fix = has_fix & ~deleted[active]  # a flagged (deleted) keyframe keeps no location term
