@@ -9,11 +9,32 @@ import { mkdtempSync, readFileSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { join, resolve } from "node:path";
 import { afterAll, describe, expect, it } from "vitest";
-import { Tracker, loadFingerprints, loadModel, parseWalk, trackWalk } from "../src/tracker";
+import { type Modes, Tracker, loadFingerprints, loadModel, parseWalk, posteriorModes, trackWalk } from "../src/tracker";
 
 const REPO = resolve(__dirname, "../..");
 const PYTHON = process.env.POSEFIX_PYTHON ?? join(REPO, ".venv/bin/python");
 const TOL_M = 0.05;
+
+interface PyModes {
+  mass: number[];
+  mean: [number, number][];
+  spread_m: number;
+  sigma_major_m: number;
+  converged: boolean;
+}
+
+/** The same modes and the same converged flag (a flag may differ only on its threshold's edge). */
+function expectSameModes(ts: Modes, py: PyModes, where: string): void {
+  const edge = Math.abs(py.mass[0] - 0.95) < 1e-9 || Math.abs(py.sigma_major_m - 5) < 1e-9;
+  if (!edge) expect(ts.converged, `${where}: converged`).toBe(py.converged);
+  expect(ts.modes.length, `${where}: modes`).toBe(py.mass.length);
+  ts.modes.forEach((m, j) => {
+    expect(Math.abs(m.mass - py.mass[j]), `${where}: mode ${j} mass`).toBeLessThanOrEqual(1e-9);
+    expect(Math.hypot(m.x - py.mean[j][0], m.y - py.mean[j][1]), `${where}: mode ${j} mean`).toBeLessThanOrEqual(TOL_M);
+  });
+  expect(Math.abs(ts.spread_m - py.spread_m), `${where}: spread`).toBeLessThanOrEqual(TOL_M);
+  expect(Math.abs(ts.sigma_major_m - py.sigma_major_m), `${where}: sigma`).toBeLessThanOrEqual(TOL_M);
+}
 
 interface Case {
   name: string;
@@ -25,6 +46,7 @@ interface Case {
   x: number[];
   y: number[];
   sigma_major_m: number[];
+  modes: PyModes[];
   ms_per_step: number;
 }
 
@@ -62,6 +84,7 @@ describe("browser tracker vs the Python online filter (same model bytes, same wa
       }
       expect(worst, `largest difference ${worst} m at step ${at}`).toBeLessThanOrEqual(TOL_M);
       for (let i = 0; i < c.x.length; i++) expect(Math.abs(run.sigma_major_m[i] - c.sigma_major_m[i])).toBeLessThanOrEqual(TOL_M);
+      for (let i = 0; i < c.x.length; i++) expectSameModes(run.modes[i], c.modes[i], `step ${i}`);
     });
   }
 });
@@ -85,19 +108,32 @@ describe("model and fingerprint files: errors name the file and the member", () 
   });
 });
 
-describe("modes and the converged flag", () => {
-  it("a known start is one mode; an unknown start is many, and not converged", async () => {
+describe("modes and the converged flag: posefix.mapmatch.modes on the same distributions", () => {
+  const modeCases: (PyModes & { name: string; model: string; prob: number[] })[] = JSON.parse(readFileSync(join(out, "modes.json"), "utf8"));
+
+  it("covers ties, near and far second places, a long blob and several places", () => {
+    expect(modeCases.map((c) => c.converged)).toContain(true);
+    expect(modeCases.some((c) => !c.converged && c.mass[0] >= 0.95)).toBe(true); // one place, not a fix
+    expect(modeCases.some((c) => c.converged && c.mass.length > 1)).toBe(true); // a second place counted, still a fix
+    expect(modeCases.some((c) => c.mass.length > 1 && c.mass[0] === c.mass[1])).toBe(true);
+  });
+
+  for (const c of modeCases) {
+    it(c.name, async () => {
+      const m = await loadModel(new Uint8Array(readFileSync(c.model)), c.model);
+      const w = Float64Array.from(c.prob);
+      const live = Int32Array.from(c.prob.flatMap((p, v) => (p > 0 ? [v] : [])));
+      expectSameModes(posteriorModes(m.graph.px, m.graph.py, w, live), c, c.name);
+    });
+  }
+
+  it("a known start is one converged mode; an unknown start is one place over the floor, not converged", async () => {
     const m = await loadModel(new Uint8Array(readFileSync(join(out, "site1.npz"))));
-    const known = new Tracker(m, { start: [81.3, 93.3] });
-    expect(known.modes()).toHaveLength(1);
-    expect(known.converged()).toBe(true);
-    const unknown = new Tracker(m, {});
-    const modes = unknown.modes();
-    expect(modes.length).toBeGreaterThan(50);
-    expect(unknown.converged()).toBe(false);
-    const total = modes.reduce((a, b) => a + b.mass, 0);
-    expect(total).toBeGreaterThanOrEqual(0.99);
-    expect(total).toBeLessThanOrEqual(1 + 1e-9);
-    for (let i = 1; i < modes.length; i++) expect(modes[i].mass).toBeLessThanOrEqual(modes[i - 1].mass);
+    const known = new Tracker(m, { start: [81.3, 93.3] }).modes();
+    expect(known.modes).toHaveLength(1);
+    expect(known.converged).toBe(true);
+    const unknown = new Tracker(m, {}).modes();
+    expect(unknown.converged).toBe(false);
+    expect(unknown.sigma_major_m).toBeGreaterThan(20);
   });
 });

@@ -18,7 +18,7 @@ export interface WalkStep {
   sigma_major_m: number;
   sigma_minor_m: number;
   angle_deg: number;
-  /** The posterior has converged on one place (one mode holds ≥ 95 %): the ellipse is a fix (server tracks). */
+  /** The posterior has converged on one place (posefix.mapmatch.modes: one mode holds ≥ 95 %, 1σ ≤ 5 m): the ellipse is a fix. */
   converged?: boolean;
   /** Places the walker may be (modes holding ≥ 1 % each) and the farthest one's distance from the main one. */
   n_modes?: number;

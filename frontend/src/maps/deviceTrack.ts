@@ -44,7 +44,9 @@ export function walkTrackFromRun(run: WalkRun, walk: Walk, file: string, skipFir
   const steps: WalkStep[] = Array.from(run.t_ms, (t, i) => ({
     i, t_ms: t, x_m: r3(run.x[i]), y_m: r3(run.y[i]), dr_x_m: r3(run.dr_x[i]), dr_y_m: r3(run.dr_y[i]),
     sigma_major_m: r3(run.sigma_major_m[i]), sigma_minor_m: r3(run.sigma_minor_m[i]), angle_deg: Math.round(run.angle_deg[i] * 10) / 10,
+    converged: run.modes[i].converged, n_modes: run.modes[i].modes.length, mode_spread_m: Math.round(run.modes[i].spread_m * 10) / 10,
   }));
+  const convergedShare = run.modes.filter((m) => m.converged).length / run.modes.length;
   const wp = walk.waypoints;
   const err = waypointErrors(run.t_ms, run.x, run.y, wp);
   const errDr = waypointErrors(run.t_ms, run.dr_x, run.dr_y, wp);
@@ -58,7 +60,10 @@ export function walkTrackFromRun(run: WalkRun, walk: Walk, file: string, skipFir
       max_m: sorted.length ? sorted[sorted.length - 1] : null, dr_mean_m: mean(scoredDr) ?? undefined, skip_first: skipFirst,
       waypoints: wp.map((w, j) => ({ t_ms: w.t_ms, x_m: w.x_m, y_m: w.y_m, error_m: err[j], dr_error_m: errDr[j], given_start: skipFirst && j === 0 })),
     },
-    walk: { file, n_steps: run.t_ms.length - 1, start: skipFirst ? "first_waypoint" : "unknown", track_ms: run.ms_per_step * (run.t_ms.length - 1), ms_per_step: run.ms_per_step },
+    walk: {
+      file, n_steps: run.t_ms.length - 1, start: skipFirst ? "first_waypoint" : "unknown", track_ms: run.ms_per_step * (run.t_ms.length - 1), ms_per_step: run.ms_per_step,
+      converged_share: Math.round(convergedShare * 1000) / 1000, converged_at_end: run.modes[run.modes.length - 1].converged,
+    },
   };
 }
 
@@ -68,6 +73,7 @@ export function liveTrack(points: LivePoint[]): WalkTrack {
     steps: points.map((p, i) => ({
       i, t_ms: p.t_ms, x_m: p.summary.x, y_m: p.summary.y, dr_x_m: p.dr[0], dr_y_m: p.dr[1],
       sigma_major_m: p.summary.sigma_major_m, sigma_minor_m: p.summary.sigma_minor_m, angle_deg: p.summary.angle_deg,
+      converged: p.converged, n_modes: p.modes.length, mode_spread_m: p.spread_m,
     })),
     errors: { n: 0, mean_m: null, median_m: null, p95_m: null, max_m: null, skip_first: false, waypoints: [] },
     walk: { file: "live", n_steps: points.length - 1, start: "live", track_ms: 0, ms_per_step: 0 },

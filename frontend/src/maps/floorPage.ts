@@ -12,7 +12,8 @@ import { clear, fmtTime, h } from "../ui/dom";
 import { type FloorPlan, type WalkStep, type WalkTrack, jobResult, mapsApi } from "./api";
 import { LiveSession } from "../tracker/live";
 import { WalkFormatError, parseWalk } from "../tracker/sensors";
-import { type Mode, trackWalk } from "../tracker/tracker";
+import type { Mode } from "../tracker/modes";
+import { trackWalk } from "../tracker/tracker";
 import { floorModel, liveTrack, walkTrackFromRun } from "./deviceTrack";
 import { ellipsePx, fitBox, fmtM, fromPx, parseStart, reachedWaypoints, toPx, walkBox, type View } from "./floorView";
 import { keepFloorsOffline, keepForOffline } from "./offline";
@@ -279,7 +280,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   function placeText(s: WalkStep): string {
     if (s.converged === undefined) return `2σ ${fmtM(2 * s.sigma_major_m)}`;
     if (s.converged) return `converged · 2σ ${fmtM(2 * s.sigma_major_m)}`;
-    return (s.n_modes ?? 1) > 1 ? `not converged: ${s.n_modes} places up to ${fmtM(s.mode_spread_m ?? 0)} apart` : `not converged · 2σ ${fmtM(2 * s.sigma_major_m)}`;
+    return `not converged: ${(s.n_modes ?? 1) > 1 ? `${s.n_modes} places up to ${fmtM(s.mode_spread_m ?? 0)} apart` : `one place, 2σ ${fmtM(2 * s.sigma_major_m)} across`}`;
   }
 
   function showTrack(t: WalkTrack) {
@@ -294,7 +295,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       h("p", {}, `${t.walk.file}: ${t.walk.n_steps} steps, tracked in ${t.walk.track_ms.toFixed(0)} ms (${t.walk.ms_per_step.toFixed(2)} ms per step).`),
       ...(t.walk.converged_at_end === undefined ? [] : [h("p", { "data-testid": "walk-converged" }, t.walk.converged_at_end
         ? `Converged: the walk is placed (${Math.round(100 * (t.walk.converged_share ?? 0))} % of its steps on one place).`
-        : `Not converged: the walk fits ${t.steps[t.steps.length - 1].n_modes} places up to ${fmtM(t.steps[t.steps.length - 1].mode_spread_m ?? 0)} apart; the track shown is the most likely, not a fix.`)]),
+        : `Not placed: ${placeText(t.steps[t.steps.length - 1])} at the end; the track shown is the most likely, not a fix.`)]),
       e.n
         ? h("p", { "data-testid": "error-mean" }, `Error at ${e.n} waypoint${e.n === 1 ? "" : "s"}: mean ${fmtM(e.mean_m)}, max ${fmtM(e.max_m)} (dead reckoning: mean ${fmtM(e.dr_mean_m)}).`)
         : h("p", { "data-testid": "error-mean" }, "This walk has no surveyed waypoints to measure the error against."),
@@ -386,7 +387,9 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     const sigma = `2σ ${fmtM(2 * last.summary.sigma_major_m)}`;
     liveMsg.textContent = `${final ? "Stopped" : "Tracking"}: ${pts.length - 1} steps · ` + (last.converged
       ? `located (${sigma})`
-      : `not located yet: ${last.modes.length} places fit the steps so far (the likeliest holds ${Math.round(100 * (last.modes[0]?.mass ?? 0))} %)`);
+      : last.modes.length > 1
+        ? `not located yet: ${last.modes.length} places up to ${fmtM(last.spread_m)} apart fit the steps so far (the likeliest holds ${Math.round(100 * last.modes[0].mass)} %)`
+        : `not located yet: one place holds ${Math.round(100 * last.modes[0].mass)} %, but it is ${sigma} across`);
     liveMsg.dataset.steps = String(pts.length - 1);
     liveMsg.dataset.converged = String(last.converged);
     setStep(track.steps.length - 1);
@@ -472,7 +475,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   };
 }
 
-/** A live session's modes: a circle of the cluster radius each, labelled with its share of the mass. */
+/** A live session's modes: a circle at each mode's mean, labelled with its share of the mass. */
 function drawModes(c: CanvasRenderingContext2D, v: View, modes: Mode[]) {
   c.font = "12px system-ui, sans-serif";
   for (const m of modes.slice(0, 12)) {

@@ -7,3 +7,4 @@ export * from "./fingerprints";
 export * from "./tracker";
 export * from "./live";
 export * from "./evaluate";
+export * from "./modes";

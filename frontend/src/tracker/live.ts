@@ -17,7 +17,8 @@
  */
 import type { TrackerModel } from "./model";
 import { type Samples, detectSteps, headingsAt, stepVector } from "./sensors";
-import { type Mode, type TrackPoint, Tracker, type TrackerOptions } from "./tracker";
+import type { Mode } from "./modes";
+import { type TrackPoint, Tracker, type TrackerOptions } from "./tracker";
 
 const DEG = Math.PI / 180;
 
@@ -112,7 +113,9 @@ export class LiveSteps {
 
 export interface LivePoint extends TrackPoint {
   dr: [number, number];
+  /** The posterior's modes, mass descending, and how far the farthest is from the main one (m). */
   modes: Mode[];
+  spread_m: number;
   converged: boolean;
 }
 
@@ -134,8 +137,8 @@ export class LiveSession {
   }
 
   private point(tp: TrackPoint): LivePoint {
-    const modes = this.tracker.modes();
-    return { ...tp, dr: [this.dr[0], this.dr[1]], modes, converged: modes.length > 0 && modes[0].mass >= 0.95 };
+    const m = this.tracker.modes();
+    return { ...tp, dr: [this.dr[0], this.dr[1]], modes: m.modes, spread_m: m.spread_m, converged: m.converged };
   }
 
   /** Feed the steps that became final; returns the new points. */

@@ -12,24 +12,18 @@
  *
  * fed to the Viterbi filter (its path gives e_t) and the forward filter (its marginal is the
  * live position: mean and 2σ ellipse). The start is a Gaussian (σ = 1 m, cut at 3σ) around
- * a known point, a WiFi fix's Gaussian, or uniform. Beside the Python tracker it reports the
- * posterior's modes (greedy 5 m clusters of 99 % of its mass) and `converged`: one mode
- * holding ≥ 95 % of the mass, so that the Gaussian summary describes where the walker is.
+ * a known point, a WiFi fix's Gaussian, or uniform. Each step's posterior also gives its
+ * modes and the converged flag (./modes.ts, the definition of posefix.mapmatch.modes).
  */
 import { ForwardFilter, type Summary, ViterbiFilter, argmax, gaussianSummary } from "./filters";
 import { type FingerprintMap, type WifiFix, predictScan, scanPeaks } from "./fingerprints";
 import type { TrackerModel } from "./model";
+import { type Modes, posteriorModes } from "./modes";
 import { type Walk, roundHalfEven, stepVector, stepsFromWalk, wifiScans, wrapAngle } from "./sensors";
 
 export interface Peak {
   xy: [number, number];
   sigma_m: number;
-}
-
-export interface Mode {
-  x: number;
-  y: number;
-  mass: number;
 }
 
 export interface TrackPoint {
@@ -222,40 +216,10 @@ export class Tracker {
     return gaussianSummary(this.model.graph, this.forward.lin, this.forward.live, this.minSigma);
   }
 
-  /** The live distribution's modes: greedy clusters of `radius_m` around the likeliest vertices, covering `coverage` of the mass. */
-  modes(radius_m = 5, coverage = 0.99): Mode[] {
+  /** The live distribution's modes and whether it has converged (posefix.mapmatch.modes). */
+  modes(): Modes {
     const g = this.model.graph;
-    const { p, live } = this.forward.probabilities();
-    const order = Uint32Array.from(live.keys()).sort((a, b) => p[b] - p[a] || a - b);
-    const seeds: { v: number; mass: number; sx: number; sy: number }[] = [];
-    let covered = 0;
-    const r2 = radius_m * radius_m;
-    for (const i of order) {
-      if (covered >= coverage) break;
-      const v = live[i];
-      const pv = p[i];
-      covered += pv;
-      let home = null;
-      for (const s of seeds) {
-        const dx = g.px[s.v] - g.px[v];
-        const dy = g.py[s.v] - g.py[v];
-        if (dx * dx + dy * dy <= r2) {
-          home = s;
-          break;
-        }
-      }
-      if (!home) seeds.push((home = { v, mass: 0, sx: 0, sy: 0 }));
-      home.mass += pv;
-      home.sx += pv * g.px[v];
-      home.sy += pv * g.py[v];
-    }
-    return seeds.map((s) => ({ x: s.sx / s.mass, y: s.sy / s.mass, mass: s.mass })).sort((a, b) => b.mass - a.mass);
-  }
-
-  /** One mode holds at least `share` of the mass: the summary then describes where the walker is. */
-  converged(share = 0.95): boolean {
-    const m = this.modes();
-    return m.length > 0 && m[0].mass >= share;
+    return posteriorModes(g.px, g.py, this.forward.lin, this.forward.live);
   }
 }
 
@@ -268,6 +232,9 @@ export interface WalkRun {
   angle_deg: Float64Array;
   dr_x: Float64Array;
   dr_y: Float64Array;
+  /** Each row's modes (how many places, how far apart, converged). */
+  modes: Modes[];
+  /** Time of the loop per step: the filters, the summary and the modes, as a live step. */
   ms_per_step: number;
   tracker: Tracker;
 }
@@ -306,7 +273,7 @@ export function trackWalk(model: TrackerModel, walk: Walk, start: [number, numbe
   const out: WalkRun = {
     t_ms: new Float64Array(n + 1), x: new Float64Array(n + 1), y: new Float64Array(n + 1),
     sigma_major_m: new Float64Array(n + 1), sigma_minor_m: new Float64Array(n + 1), angle_deg: new Float64Array(n + 1),
-    dr_x: new Float64Array(n + 1), dr_y: new Float64Array(n + 1), ms_per_step: 0, tracker: tr,
+    dr_x: new Float64Array(n + 1), dr_y: new Float64Array(n + 1), modes: [tr.modes()], ms_per_step: 0, tracker: tr,
   };
   const put = (i: number, t: number, s: Summary) => {
     out.t_ms[i] = t;
@@ -326,6 +293,7 @@ export function trackWalk(model: TrackerModel, walk: Walk, start: [number, numbe
     const pk = peakAt.get(i);
     const tp = tr.step(sx, sy, steps.t_ms[i], w?.[0] ?? null, pk?.[0] ?? null, w?.[1], pk?.[1]);
     put(i + 1, steps.t_ms[i], tp.summary);
+    out.modes.push(tr.modes());
     out.dr_x[i + 1] = out.dr_x[i] + sx;
     out.dr_y[i + 1] = out.dr_y[i] + sy;
   }
