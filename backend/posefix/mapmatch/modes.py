@@ -4,7 +4,7 @@ A marginal p(y_t = v) over the graph's vertices is summarised by its mean and co
 (:func:`posefix.mapmatch.viterbi.gaussian_summary`), which is honest only when the
 distribution is one blob. With an unknown start it is often several: the same walk shape
 fits several corridors. The modes are found on a coarse grid of ``bin_m`` cells, anchored
-at the lowest x and y of the vertices with mass:
+at the lowest x and y of all the vertices (so a vertex keeps its bin from step to step):
 
     m_b = Σ_{v in bin b} p(v)                           (mass per bin, in vertex order)
     S   = the fewest bins holding ``support`` of the mass (by mass, descending; ties: lower
@@ -99,7 +99,8 @@ def posterior_modes(p_xy_m: np.ndarray, prob: np.ndarray, bin_m: float = 2.0, su
     w = w / total
     live = np.nonzero(w > 0.0)[0]
     p, wl = p_xy_m[live], w[live]
-    bin_id, shape = _bins(p, bin_m)
+    bin_all, shape = _bins(p_xy_m, bin_m)
+    bin_id = bin_all[live]
     m = np.bincount(bin_id, weights=wl, minlength=shape[0] * shape[1])
     order = np.lexsort((np.arange(m.size), -m))
     k = int(np.searchsorted(np.cumsum(m[order]), support)) + 1

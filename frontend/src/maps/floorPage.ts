@@ -388,7 +388,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     liveMsg.textContent = `${final ? "Stopped" : "Tracking"}: ${pts.length - 1} steps · ` + (last.converged
       ? `located (${sigma})`
       : last.modes.length > 1
-        ? `not located yet: ${last.modes.length} places up to ${fmtM(last.spread_m)} apart fit the steps so far (the likeliest holds ${Math.round(100 * last.modes[0].mass)} %)`
+        ? `not located yet: ${last.modes.length} places fit the steps so far, up to ${fmtM(last.spread_m)} apart (the likeliest holds ${Math.round(100 * last.modes[0].mass)} %)`
         : `not located yet: one place holds ${Math.round(100 * last.modes[0].mass)} %, but it is ${sigma} across`);
     liveMsg.dataset.steps = String(pts.length - 1);
     liveMsg.dataset.converged = String(last.converged);

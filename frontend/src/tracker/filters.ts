@@ -1,10 +1,10 @@
 /**
  * The online recursions of `posefix.mapmatch.viterbi` over a model's grid, on typed arrays.
- * With pred[k][v] the vertex u such that v = u + o_k (-1: none), trans (K,) the step's
+ * With pred[v, k] the vertex u such that v = u + o_k (none: −∞), trans (K,) the step's
  * weighted transition scores and state (V,) its weighted state scores (or none):
  *
- *   Viterbi:  δ_t(v) = max_k δ_{t−1}(pred[k][v]) + trans[k] + state(v)      (back-pointer: the arg-max k)
- *   Forward:  α_t(v) = log Σ_k e^{α_{t−1}(pred[k][v]) + trans[k]} + state(v)  (kept as e^{α − max α})
+ *   Viterbi:  δ_t(v) = max_k δ_{t−1}(pred[v, k]) + trans[k] + state(v)      (back-pointer: the arg-max k)
+ *   Forward:  α_t(v) = log Σ_k e^{α_{t−1}(pred[v, k]) + trans[k]} + state(v)  (kept as e^{α − max α})
  *   Beam:     entries more than `beam` nats below the column's best are dropped (−∞)
  *
  * and the Gaussian summary of a distribution p (V,): w_v = p_v / Σp (entries within 20 nats
@@ -32,69 +32,45 @@ export interface Column {
   live: Int32Array;
 }
 
-export function argmax(c: Column): number {
-  let m = NEG;
-  let j = 0;
-  for (const v of c.live) if (c.val[v] > m) (m = c.val[v]), (j = v);
-  return j;
-}
-
-/** The column with entries more than `beam` nats below the best dropped, from the vertices `idx` (ascending). */
-function pruned(val: Float64Array, idx: Int32Array | null, n: number, beam: number | null): Column {
-  const m = idx ? idx.length : n;
-  let top = NEG;
-  for (let i = 0; i < m; i++) {
-    const x = val[idx ? idx[i] : i];
-    if (x > top) top = x;
+/**
+ * The vertices to evaluate for the next step, written to `out` (count returned): with a
+ * beam and under a third of the vertices live, only those one transition away from a live
+ * one; else −1 (all of them).
+ */
+export function candidates(g: Graph, live: Int32Array, beam: number | null, mark: Uint8Array, out: Int32Array): number {
+  if (beam === null || live.length >= Math.trunc(g.n / 3)) return -1;
+  const k = g.k;
+  const succ = g.succ;
+  let lo = g.n;
+  let hi = -1;
+  for (let i = 0; i < live.length; i++) {
+    const base = live[i] * k;
+    for (let j = 0; j < k; j++) {
+      const v = succ[base + j];
+      if (v >= 0 && !mark[v]) {
+        mark[v] = 1;
+        if (v < lo) lo = v;
+        if (v > hi) hi = v;
+      }
+    }
   }
-  const thr = beam === null ? NEG : top - beam;
-  const live = new Int32Array(m);
-  let c = 0;
-  for (let i = 0; i < m; i++) {
-    const v = idx ? idx[i] : i;
-    if (val[v] >= thr && val[v] > NEG) live[c++] = v;
-    else val[v] = NEG;
-  }
-  return { val, live: live.slice(0, c) };
+  let m = 0;
+  for (let v = lo; v <= hi; v++) if (mark[v]) (out[m++] = v), (mark[v] = 0);
+  return m;
 }
 
 /**
- * The vertices to evaluate for the next step: with a beam and under a third of the
- * vertices live, only those one transition away from a live one; else all (null).
+ * One column's storage: values with the sentinel entry n (always the neutral value) and
+ * two live-index buffers used in turn, so a step allocates nothing of the graph's size.
  */
-export function candidates(g: Graph, c: Column, beam: number | null, mark: Uint8Array): Int32Array | null {
-  if (beam === null || c.live.length >= Math.trunc(g.n / 3)) return null;
-  const k = g.k;
-  let m = 0;
-  for (const u of c.live) {
-    for (let j = 0; j < k; j++) {
-      const v = g.succ[u * k + j];
-      if (v >= 0 && !mark[v]) (mark[v] = 1), m++;
-    }
-  }
-  const out = new Int32Array(m);
-  for (let v = 0, i = 0; i < m; v++) if (mark[v]) (out[i++] = v), (mark[v] = 0);
-  return out;
-}
-
-/** Two column buffers used in turn, so a step allocates nothing of the graph's size. */
-class PingPong {
-  private bufs: [Float64Array, Float64Array];
-  private i = 0;
+class LiveBuffers {
+  private readonly bufs: [Int32Array, Int32Array];
   constructor(n: number) {
-    // One entry more than the vertices: index n is the "no predecessor" sentinel, always −∞.
-    this.bufs = [new Float64Array(n + 1).fill(NEG), new Float64Array(n + 1).fill(NEG)];
+    this.bufs = [new Int32Array(n), new Int32Array(n)];
   }
-  /** The buffer not holding `current` (all −∞). */
-  next(current: Column): Float64Array {
-    const b = this.bufs[this.i];
-    return b === current.val ? this.bufs[1 - this.i] : b;
-  }
-  /** `old` is no longer needed: reset its live entries so it can be the next buffer. */
-  release(old: Column, now: Column): void {
-    if (old.val === now.val) return;
-    for (const v of old.live) old.val[v] = NEG;
-    this.i = this.bufs[0] === old.val ? 0 : 1;
+  /** The buffer not holding `current`. */
+  other(current: Int32Array): Int32Array {
+    return current.buffer === this.bufs[0].buffer ? this.bufs[1] : this.bufs[0];
   }
 }
 
@@ -102,10 +78,12 @@ export class ViterbiFilter {
   delta: Column;
   /** Back-pointers of the last `keep` steps (Int8: offset index, −1 unreachable), oldest first. */
   back: Int8Array[] = [];
+  /** The best vertex of δ (the first in vertex order on ties, as np.argmax). */
+  top = -1;
   private readonly mark: Uint8Array;
-  private readonly bufs: PingPong;
-  private readonly best: Float64Array;
-  private readonly kb: Int8Array;
+  private readonly cand: Int32Array;
+  private readonly lives: LiveBuffers;
+  private spare: Float64Array;
 
   constructor(
     readonly g: Graph,
@@ -115,13 +93,32 @@ export class ViterbiFilter {
   ) {
     if (logPrior.length !== g.n) throw new Error(`log prior has ${logPrior.length} entries, the graph ${g.n} vertices`);
     if (!logPrior.some((v) => v > NEG)) throw new Error("the start prior has no possible vertex");
-    this.bufs = new PingPong(g.n);
-    const first = this.bufs.next({ val: new Float64Array(0), live: new Int32Array(0) });
-    first.set(logPrior);
-    this.delta = pruned(first, null, g.n, beam);
-    this.mark = new Uint8Array(g.n);
-    this.best = new Float64Array(g.n);
-    this.kb = new Int8Array(g.n);
+    const n = g.n;
+    // One entry more than the vertices: index n is the "no predecessor" sentinel, always −∞.
+    const first = new Float64Array(n + 1).fill(NEG);
+    this.spare = new Float64Array(n + 1).fill(NEG);
+    this.lives = new LiveBuffers(n);
+    this.mark = new Uint8Array(n);
+    this.cand = new Int32Array(n);
+    let best = NEG;
+    for (let v = 0; v < n; v++) {
+      first[v] = logPrior[v];
+      if (logPrior[v] > best) (best = logPrior[v]), (this.top = v);
+    }
+    this.delta = this.prune(first, null, n, best, this.lives.other(new Int32Array(0)));
+  }
+
+  /** Drop the entries of `val` (over `idx`, or all) more than `beam` below `best`; their live list. */
+  private prune(val: Float64Array, idx: Int32Array | null, m: number, best: number, liveBuf: Int32Array): Column {
+    const thr = this.beam === null ? NEG : best - this.beam;
+    let c = 0;
+    for (let i = 0; i < m; i++) {
+      const v = idx ? idx[i] : i;
+      const x = val[v];
+      if (x >= thr && x > NEG) liveBuf[c++] = v;
+      else val[v] = NEG;
+    }
+    return { val, live: liveBuf.subarray(0, c) };
   }
 
   private backArray(): Int8Array {
@@ -133,53 +130,41 @@ export class ViterbiFilter {
     const { g } = this;
     const n = g.n;
     const k = g.k;
-    const cand = candidates(g, this.delta, this.beam, this.mark);
+    const m = candidates(g, this.delta.live, this.beam, this.mark, this.cand);
+    const cand = m >= 0 ? this.cand : null;
+    const count = m >= 0 ? m : n;
     const d = this.delta.val;
-    const m = cand ? cand.length : n;
-    const pt = g.predS;
-    const best = this.best;
-    const kb = this.kb;
-    // One offset at a time over the candidates (contiguous reads of pred[k]), as numpy does;
-    // pred = n (the sentinel) reads −∞.
-    if (cand) {
-      for (let i = 0; i < m; i++) (best[i] = d[pt[cand[i]]] + trans[0]), (kb[i] = 0);
-      for (let j = 1; j < k; j++) {
-        const row = j * n;
-        const tj = trans[j];
-        for (let i = 0; i < m; i++) {
-          const c = d[pt[row + cand[i]]] + tj;
-          if (c > best[i]) (best[i] = c), (kb[i] = j);
-        }
-      }
-    } else {
-      for (let i = 0; i < n; i++) (best[i] = d[pt[i]] + trans[0]), (kb[i] = 0);
-      for (let j = 1; j < k; j++) {
-        const row = j * n;
-        const tj = trans[j];
-        for (let i = 0; i < n; i++) {
-          const c = d[pt[row + i]] + tj;
-          if (c > best[i]) (best[i] = c), (kb[i] = j);
-        }
-      }
-    }
-    const out = this.bufs.next(this.delta);
+    const pv = g.predV;
+    const out = this.spare;
     const back = this.backArray();
-    let any = false;
-    for (let i = 0; i < m; i++) {
+    const t0 = trans[0];
+    let best = NEG;
+    let top = -1;
+    // Vertex by vertex over its K predecessors (one row of predV): the running maximum stays
+    // in a register. Ties keep the lower offset, as numpy's strict `greater` does.
+    for (let i = 0; i < count; i++) {
       const v = cand ? cand[i] : i;
-      let b = best[i];
-      if (b > NEG) back[v] = kb[i];
+      const row = v * k;
+      let b = d[pv[row]] + t0;
+      let kb = 0;
+      for (let j = 1; j < k; j++) {
+        const c = d[pv[row + j]] + trans[j];
+        if (c > b) (b = c), (kb = j);
+      }
+      if (b > NEG) back[v] = kb;
       if (state) b += state[v];
       out[v] = b;
-      if (b > NEG) any = true;
+      if (b > best) (best = b), (top = v);
     }
-    if (any) {
+    if (best > NEG) {
       const old = this.delta;
-      this.delta = pruned(out, cand, n, this.beam);
-      this.bufs.release(old, this.delta);
+      this.delta = this.prune(out, cand, count, best, this.lives.other(old.live));
+      this.top = top;
+      for (let i = 0; i < old.live.length; i++) d[old.live[i]] = NEG;
+      this.spare = d;
     } else {
       // Every path hit a wall: keep the belief (the walker is taken to have stood still).
-      for (let i = 0; i < m; i++) out[cand ? cand[i] : i] = NEG;
+      for (let i = 0; i < count; i++) out[cand ? cand[i] : i] = NEG;
       back.fill(-1);
       for (const v of this.delta.live) back[v] = 0;
     }
@@ -188,7 +173,7 @@ export class ViterbiFilter {
 
   /** The last `lastN + 1` vertices of the most likely path (lastN ≤ the kept steps). */
   bestPath(lastN: number): Int32Array {
-    let v = argmax(this.delta);
+    let v = this.top;
     const t = this.back.length;
     const n = Math.min(lastN, t);
     const out = new Int32Array(n + 1);
@@ -196,7 +181,7 @@ export class ViterbiFilter {
     for (let i = 0; i < n; i++) {
       const kk = this.back[t - 1 - i][v];
       if (kk < 0) throw new Error("back-pointer chain broken (pruned state on the best path)");
-      v = this.g.predT[kk * this.g.n + v];
+      v = this.g.predV[v * this.g.k + kk];
       out[n - 1 - i] = v;
     }
     return out;
@@ -213,9 +198,11 @@ export class ForwardFilter {
   lin: Float64Array; // [n] = 0: the sentinel
   live: Int32Array;
   private next: Float64Array;
-  private liveBufs: [Int32Array, Int32Array];
+  private readonly lives: LiveBuffers;
   private readonly mark: Uint8Array;
+  private readonly cand: Int32Array;
   private readonly acc: Float64Array;
+  private readonly e: Float64Array;
   private readonly floor: number;
 
   constructor(
@@ -227,12 +214,12 @@ export class ForwardFilter {
     this.floor = beam === null ? 0 : Math.exp(-beam);
     this.lin = new Float64Array(n + 1);
     this.next = new Float64Array(n + 1);
-    this.liveBufs = [new Int32Array(n), new Int32Array(n)];
+    this.lives = new LiveBuffers(n);
     let top = NEG;
     for (let v = 0; v < n; v++) if (logPrior[v] > top) top = logPrior[v];
     const thr = beam === null ? NEG : top - beam;
     let c = 0;
-    const live = this.liveBufs[0];
+    const live = this.lives.other(new Int32Array(0));
     for (let v = 0; v < n; v++) {
       if (logPrior[v] > NEG && logPrior[v] >= thr) {
         this.lin[v] = Math.exp(logPrior[v] - top);
@@ -241,82 +228,67 @@ export class ForwardFilter {
     }
     this.live = live.subarray(0, c);
     this.mark = new Uint8Array(n);
+    this.cand = new Int32Array(n);
     this.acc = new Float64Array(n);
+    this.e = new Float64Array(g.k);
   }
 
   step(trans: Float64Array, state: Float64Array | null): void {
     const { g } = this;
     const n = g.n;
     const k = g.k;
-    const cand = candidates(g, { val: this.lin, live: this.live }, this.beam, this.mark);
+    const m = candidates(g, this.live, this.beam, this.mark, this.cand);
+    const cand = m >= 0 ? this.cand : null;
+    const count = m >= 0 ? m : n;
     const a = this.lin;
     let tTop = NEG;
     for (let j = 0; j < k; j++) if (trans[j] > tTop) tTop = trans[j];
-    const e = new Float64Array(k);
+    const e = this.e;
     for (let j = 0; j < k; j++) {
       const tk = trans[j] - tTop;
       e[j] = tk > -300 ? Math.exp(tk) : 0;
     }
-    const m = cand ? cand.length : n;
-    const pt = g.predS;
+    const pv = g.predV;
     const acc = this.acc;
-    if (cand) {
-      for (let i = 0; i < m; i++) acc[i] = a[pt[cand[i]]] * e[0];
-      for (let j = 1; j < k; j++) {
-        const ej = e[j];
-        if (ej === 0) continue;
-        const row = j * n;
-        for (let i = 0; i < m; i++) acc[i] += a[pt[row + cand[i]]] * ej;
-      }
-    } else {
-      for (let i = 0; i < n; i++) acc[i] = a[pt[i]] * e[0];
-      for (let j = 1; j < k; j++) {
-        const ej = e[j];
-        if (ej === 0) continue;
-        const row = j * n;
-        for (let i = 0; i < n; i++) acc[i] += a[pt[row + i]] * ej;
-      }
-    }
+    const e0 = e[0];
+    // Vertex by vertex, offsets in order (the sum's order is numpy's: offset 0 first; a
+    // term with e = 0 adds an exact 0, where numpy skips it).
     let best = 0;
+    for (let i = 0; i < count; i++) {
+      const row = (cand ? cand[i] : i) * k;
+      let s = a[pv[row]] * e0;
+      for (let j = 1; j < k; j++) s += a[pv[row + j]] * e[j];
+      acc[i] = s;
+      if (s > best) best = s;
+    }
     if (state) {
       // log domain: log(acc) + state, as the Python filter does it
       best = NEG;
-      for (let i = 0; i < m; i++) {
+      for (let i = 0; i < count; i++) {
         const x = Math.log(acc[i]) + state[cand ? cand[i] : i];
         acc[i] = x;
         if (x > best) best = x;
       }
       if (!(best > NEG)) return; // every path hit a wall: keep the belief
-      for (let i = 0; i < m; i++) acc[i] = Math.exp(acc[i] - best);
-    } else {
-      for (let i = 0; i < m; i++) if (acc[i] > best) best = acc[i];
-      if (!(best > 0)) return;
-      for (let i = 0; i < m; i++) acc[i] /= best;
-    }
+      for (let i = 0; i < count; i++) acc[i] = Math.exp(acc[i] - best);
+      best = 1;
+    } else if (!(best > 0)) return;
     const out = this.next;
-    const liveOut = this.liveBufs[this.live.buffer === this.liveBufs[0].buffer ? 1 : 0];
+    const liveOut = this.lives.other(this.live);
+    const floor = this.floor * best;
     let c = 0;
-    for (let i = 0; i < m; i++) {
+    for (let i = 0; i < count; i++) {
       const x = acc[i];
-      if (x > 0 && x >= this.floor) {
+      if (x > 0 && x >= floor) {
         const v = cand ? cand[i] : i;
-        out[v] = x;
+        out[v] = x / best;
         liveOut[c++] = v;
       }
     }
-    for (const v of this.live) a[v] = 0;
+    for (let i = 0; i < this.live.length; i++) a[this.live[i]] = 0;
     this.next = a;
     this.lin = out;
     this.live = liveOut.subarray(0, c);
-  }
-
-  /** The filtered marginal as probabilities on the live vertices (sum 1). */
-  probabilities(): { p: Float64Array; live: Int32Array } {
-    let s = 0;
-    for (const v of this.live) s += this.lin[v];
-    const p = new Float64Array(this.live.length);
-    this.live.forEach((v, i) => (p[i] = this.lin[v] / s));
-    return { p, live: this.live };
   }
 }
 

@@ -5,7 +5,7 @@
  *
  *   vertex centre  p_v = (x0 + (col_v + ½)·c, y0 + (row_v + ½)·c)
  *   succ[u, k] = v  when bit k of trans_mask[u] is set and v is the vertex at ij_u + offsets[k]
- *   pred[k][v] = u  the same pair seen from v (-1: no transition)
+ *   pred[v, k] = u  the same pair seen from v (stored with n, the filters' sentinel, for none)
  */
 import { type NpyArray, NpzFormatError, readNpz } from "./npz";
 
@@ -46,10 +46,12 @@ export interface Graph {
   offY: Float64Array;
   /** succ[u * k + j]: vertex reached from u by offset j, or -1. */
   succ: Int32Array;
-  /** predT[j * n + v]: vertex u with u + offset j = v, or -1 (one offset per row). */
-  predT: Int32Array;
-  /** predT with n instead of -1: the filters' value buffers hold a sentinel at index n. */
-  predS: Int32Array;
+  /**
+   * predV[v * k + j]: vertex u with u + offset j = v, or n when there is none (the filters'
+   * value buffers hold a neutral sentinel at index n). One row of K per vertex: a filter
+   * step reads a vertex's predecessors together.
+   */
+  predV: Int32Array;
 }
 
 export interface TrackerModel {
@@ -75,13 +77,13 @@ function numbers(z: Map<string, NpyArray>, file: string, name: string): number[]
 }
 
 /** Dense successor and predecessor tables from the vertices and the transition bits. */
-export function transitionTables(ij: ArrayLike<number>, transMask: ArrayLike<number>, offsets: ArrayLike<number>, rows: number, cols: number): { succ: Int32Array; predT: Int32Array } {
+export function transitionTables(ij: ArrayLike<number>, transMask: ArrayLike<number>, offsets: ArrayLike<number>, rows: number, cols: number): { succ: Int32Array; predV: Int32Array } {
   const n = transMask.length;
   const k = offsets.length / 2;
   const grid = new Int32Array(rows * cols).fill(-1);
   for (let v = 0; v < n; v++) grid[ij[2 * v + 1] * cols + ij[2 * v]] = v;
   const succ = new Int32Array(n * k).fill(-1);
-  const predT = new Int32Array(n * k).fill(-1);
+  const predV = new Int32Array(n * k).fill(n);
   for (let j = 0; j < k; j++) {
     const dc = offsets[2 * j];
     const dr = offsets[2 * j + 1];
@@ -93,10 +95,10 @@ export function transitionTables(ij: ArrayLike<number>, transMask: ArrayLike<num
       const v = grid[r * cols + c];
       if (v < 0) continue;
       succ[u * k + j] = v;
-      predT[j * n + v] = u;
+      predV[v * k + j] = u;
     }
   }
-  return { succ, predT };
+  return { succ, predV };
 }
 
 /** Read a model file's bytes (`GET /api/v1/floorplans/{id}/model`); errors name file and member. */
@@ -126,7 +128,7 @@ export async function loadModel(bytes: Uint8Array, file = "model.npz"): Promise<
   const offX = new Float64Array(k);
   const offY = new Float64Array(k);
   for (let j = 0; j < k; j++) (offX[j] = off[2 * j] * cell), (offY[j] = off[2 * j + 1] * cell);
-  const { succ, predT } = transitionTables(ij, mask, off, rows, cols);
+  const { succ, predV } = transitionTables(ij, mask, off, rows, cols);
   const geo = numbers(z, file, "georef");
   const sm = numbers(z, file, "step_model");
   if (sm.length !== 7) throw new NpzFormatError(file, "step_model", `expected 7 numbers, got ${sm.length}`);
@@ -138,7 +140,7 @@ export async function loadModel(bytes: Uint8Array, file = "model.npz"): Promise<
   if (!(Number.isFinite(tau) && tau >= 0)) throw new NpzFormatError(file, "sigmas", `wifi_corr_s (5th entry) must be a number of seconds >= 0, got ${tau}`);
   const beam = numbers(z, file, "beam")[0];
   return {
-    graph: { cell_m: cell, x0_m: x0, y0_m: y0, rows, cols, n, k, px, py, offX, offY, succ, predT, predS: predT.map((u) => (u < 0 ? n : u)) },
+    graph: { cell_m: cell, x0_m: x0, y0_m: y0, rows, cols, n, k, px, py, offX, offY, succ, predV },
     georef: geo.length === 4 ? [geo[0], geo[1], geo[2], geo[3]] : null,
     step: { height_m: sm[0], alpha_s: sm[1], beta: sm[2], gamma_m: sm[3], heading_bias_rad: sm[4], min_len_m: sm[5], max_len_m: sm[6] },
     weights: { f1: w[0], f2: w[1], f3: w[2], f4: w[3] },

@@ -2,7 +2,7 @@
  * Modes of a position posterior and whether it has converged on one: the definition of
  * `posefix.mapmatch.modes` (its docstring has the reasoning), step for step.
  *
- *   m_b   = Σ_{v in bin b} p(v)                 (bins of `bin_m` from the lowest x and y with mass; vertex order)
+ *   m_b   = Σ_{v in bin b} p(v)                 (bins of `bin_m` from the lowest x and y of all vertices; vertex order)
  *   S     = the fewest bins holding `support` of the mass (mass descending, ties: lower bin index)
  *   modes = connected components of S dilated by one bin (8-neighbours), labelled in raster order
  *   mode j: mass M_j and mean over the vertices in bins of S in j; counted when M_j ≥ `min_mass`
@@ -39,56 +39,90 @@ export interface ModeOptions {
   converged_sigma_m?: number;
 }
 
-/** Bin of each vertex (row-major over the bins' grid) and the grid's shape. */
-function binsOf(px: Float64Array, py: Float64Array, live: Int32Array, bin_m: number): { bin: Int32Array; rows: number; cols: number } {
+/** The bins of a floor's vertices and scratch space for its steps (one per positions array and bin size). */
+interface BinGrid {
+  bin_m: number;
+  bin: Int32Array; // per vertex
+  rows: number;
+  cols: number;
+  mass: Float64Array; // per bin
+  keep: Uint8Array;
+  dil: Uint8Array;
+  label: Int32Array;
+  stack: Int32Array;
+  w: Float64Array; // per live vertex
+}
+
+const grids = new WeakMap<Float64Array, BinGrid>();
+
+function binGrid(px: Float64Array, py: Float64Array, bin_m: number): BinGrid {
+  const hit = grids.get(px);
+  if (hit && hit.bin_m === bin_m && hit.bin.length === px.length) return hit;
   let lx = Infinity;
   let ly = Infinity;
-  for (const v of live) {
+  for (let v = 0; v < px.length; v++) {
     if (px[v] < lx) lx = px[v];
     if (py[v] < ly) ly = py[v];
   }
-  const bx = new Int32Array(live.length);
-  const by = new Int32Array(live.length);
+  const bx = new Int32Array(px.length);
+  const by = new Int32Array(px.length);
   let cols = 0;
   let rows = 0;
-  for (let i = 0; i < live.length; i++) {
-    bx[i] = Math.floor((px[live[i]] - lx) / bin_m);
-    by[i] = Math.floor((py[live[i]] - ly) / bin_m);
-    if (bx[i] >= cols) cols = bx[i] + 1;
-    if (by[i] >= rows) rows = by[i] + 1;
+  for (let v = 0; v < px.length; v++) {
+    bx[v] = Math.floor((px[v] - lx) / bin_m);
+    by[v] = Math.floor((py[v] - ly) / bin_m);
+    if (bx[v] >= cols) cols = bx[v] + 1;
+    if (by[v] >= rows) rows = by[v] + 1;
   }
-  const bin = new Int32Array(live.length);
-  for (let i = 0; i < live.length; i++) bin[i] = by[i] * cols + bx[i];
-  return { bin, rows, cols };
+  const bin = new Int32Array(px.length);
+  for (let v = 0; v < px.length; v++) bin[v] = by[v] * cols + bx[v];
+  const nb = rows * cols;
+  const g = { bin_m, bin, rows, cols, mass: new Float64Array(nb), keep: new Uint8Array(nb), dil: new Uint8Array(nb), label: new Int32Array(nb), stack: new Int32Array(nb), w: new Float64Array(px.length) };
+  grids.set(px, g);
+  return g;
 }
 
-/** The fewest bins holding `support` of the mass (as np.searchsorted over the cumulative sum). */
-function supportBins(m: Float64Array, support: number): Uint8Array {
-  const nz: number[] = [];
-  for (let b = 0; b < m.length; b++) if (m[b] > 0) nz.push(b);
+/**
+ * Mark in `keep` the fewest bins holding `support` of the mass `m`, taken by mass descending
+ * and, among equal masses, by bin index (np.searchsorted over the cumulative sum). The
+ * cumulative sum runs over the masses in that order, so a native sort of the masses alone
+ * finds where it crosses `support`; then the tied bins at the crossing are taken in index order.
+ */
+function supportBins(m: Float64Array, support: number, keep: Uint8Array): void {
+  keep.fill(0);
+  let nz = 0;
+  for (let b = 0; b < m.length; b++) if (m[b] > 0) nz++;
+  const sorted = new Float64Array(nz);
+  for (let b = 0, i = 0; b < m.length; b++) if (m[b] > 0) sorted[i++] = m[b];
+  sorted.sort();
   // Bins without mass come last in the order and are never needed: the mass sums to 1 > support.
-  nz.sort((a, b) => m[b] - m[a] || a - b);
-  const keep = new Uint8Array(m.length);
   let cum = 0;
-  for (const b of nz) {
-    keep[b] = 1;
-    cum += m[b];
+  let i = nz - 1;
+  for (; i >= 0; i--) {
+    cum += sorted[i];
     if (cum >= support) break;
   }
-  return keep;
+  const last = Math.max(i, 0);
+  const cut = sorted[last];
+  let ties = 1; // bins of mass `cut` taken: the one at the crossing and those after it in the order
+  for (let j = last + 1; j < nz && sorted[j] === cut; j++) ties++;
+  for (let b = 0; b < m.length; b++) {
+    if (m[b] > cut) keep[b] = 1;
+    else if (m[b] === cut && ties > 0) (keep[b] = 1), ties--;
+  }
 }
 
-/** Components of `keep` dilated by one bin, 8-connected, labelled 1.. in raster order of their first cell. */
-function labelDilated(keep: Uint8Array, rows: number, cols: number): { label: Int32Array; count: number } {
-  const dil = new Uint8Array(rows * cols);
+/** Components of `keep` dilated by one bin, 8-connected, labelled 1.. in raster order of their first cell (as scipy.ndimage.label). */
+function labelDilated(g: BinGrid): number {
+  const { keep, rows, cols, dil, label, stack } = g;
+  dil.fill(0);
+  label.fill(0);
   for (let r = 0; r < rows; r++) {
     for (let c = 0; c < cols; c++) {
       if (!keep[r * cols + c]) continue;
       for (let i = Math.max(r - 1, 0); i <= Math.min(r + 1, rows - 1); i++) for (let j = Math.max(c - 1, 0); j <= Math.min(c + 1, cols - 1); j++) dil[i * cols + j] = 1;
     }
   }
-  const label = new Int32Array(rows * cols);
-  const stack = new Int32Array(rows * cols);
   let count = 0;
   for (let s = 0; s < rows * cols; s++) {
     if (!dil[s] || label[s]) continue;
@@ -107,7 +141,7 @@ function labelDilated(keep: Uint8Array, rows: number, cols: number): { label: In
       }
     }
   }
-  return { label, count };
+  return count;
 }
 
 /** 1σ major semi-axis of weights `w` (sum 1, over the live vertices) as posefix.mapmatch.modes._sigma_major. */
@@ -139,23 +173,29 @@ export function posteriorModes(px: Float64Array, py: Float64Array, weight: Float
   const support = opts.support ?? 0.995;
   const minMass = opts.min_mass ?? 0.01;
   let total = 0;
-  for (const v of live) total += weight[v];
+  for (let i = 0; i < live.length; i++) total += weight[live[i]];
   if (!(total > 0)) throw new Error("posteriorModes: the distribution has no mass");
-  const w = new Float64Array(live.length);
-  for (let i = 0; i < live.length; i++) w[i] = weight[live[i]] / total;
-  const { bin, rows, cols } = binsOf(px, py, live, bin_m);
-  const m = new Float64Array(rows * cols);
-  for (let i = 0; i < live.length; i++) m[bin[i]] += w[i];
-  const keep = supportBins(m, support);
-  const { label, count } = labelDilated(keep, rows, cols);
+  const grid = binGrid(px, py, bin_m);
+  const { bin, keep, label } = grid;
+  const w = grid.w;
+  const m = grid.mass.fill(0);
+  for (let i = 0; i < live.length; i++) {
+    const x = weight[live[i]] / total;
+    w[i] = x;
+    m[bin[live[i]]] += x;
+  }
+  supportBins(m, support, keep);
+  const count = labelDilated(grid);
   const mass = new Float64Array(count + 1);
   const sx = new Float64Array(count + 1);
   const sy = new Float64Array(count + 1);
   for (let i = 0; i < live.length; i++) {
-    const l = keep[bin[i]] ? label[bin[i]] : 0;
+    const v = live[i];
+    const b = bin[v];
+    const l = keep[b] ? label[b] : 0;
     mass[l] += w[i];
-    sx[l] += w[i] * px[live[i]];
-    sy[l] += w[i] * py[live[i]];
+    sx[l] += w[i] * px[v];
+    sy[l] += w[i] * py[v];
   }
   let sel: number[] = [];
   for (let l = 1; l <= count; l++) if (mass[l] >= minMass) sel.push(l);

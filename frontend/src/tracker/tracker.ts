@@ -15,7 +15,7 @@
  * a known point, a WiFi fix's Gaussian, or uniform. Each step's posterior also gives its
  * modes and the converged flag (./modes.ts, the definition of posefix.mapmatch.modes).
  */
-import { ForwardFilter, type Summary, ViterbiFilter, argmax, gaussianSummary } from "./filters";
+import { ForwardFilter, type Summary, ViterbiFilter, gaussianSummary } from "./filters";
 import { type FingerprintMap, type WifiFix, predictScan, scanPeaks } from "./fingerprints";
 import type { TrackerModel } from "./model";
 import { type Modes, posteriorModes } from "./modes";
@@ -208,7 +208,7 @@ export class Tracker {
     this.nSteps++;
     const last = this.cumHist[this.cumHist.length - 1];
     this.cumHist.push([last[0] + sx, last[1] + sy]);
-    return { t_ms, summary: this.summary(), vertex: argmax(this.viterbi.delta) };
+    return { t_ms, summary: this.summary(), vertex: this.viterbi.top };
   }
 
   /** Gaussian summary of the live (filtered) distribution. */
