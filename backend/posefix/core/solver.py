@@ -6,8 +6,8 @@ Two paths reach the same minimum:
   ``(J^T J + lambda diag(J^T J)) dx = -J^T r``.  Every term links at most two neighbouring
   keyframes, so with the state ordered keyframe by keyframe (6 unknowns each) ``J^T J`` is
   symmetric block-tridiagonal: a band of 11 super-diagonals.  It is stored in LAPACK's
-  upper banded form and factorised by ``scipy.linalg.solveh_banded`` (banded Cholesky,
-  O(k * 11^2)).  The robust location loss is already inside the residual (see terms.py), so
+  upper banded form and factorised by ``banded.factor`` (block cyclic reduction: Cholesky in
+  an odd-even order, O(k * 6^3), numpy only; LAPACK's banded Cholesky for long runs).  The robust location loss is already inside the residual (see terms.py), so
   the Gauss-Newton model is that of the exact cost; the gain ratio steers lambda
   (Nielsen's rule: lambda *= max(1/3, 1 - (2 rho - 1)^3) on success, *= nu, nu *= 2 on failure).
 * ``solver_reference.solve_scipy`` (reference path; ``solver_reference.solve`` dispatches between the two): ``scipy.optimize.least_squares`` (trust region
@@ -29,9 +29,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import LinAlgError, get_blas_funcs, get_lapack_funcs, solveh_banded
-
+from posefix.core import banded
 from posefix.core import terms as T
+from posefix.core.banded import LinAlgError
 
 BAND_U = 11  # super-diagonals of a block-tridiagonal matrix with 6x6 blocks
 CHORD_AFTER_STEPS = 30  # local Newton: after a step under this many step tolerances, re-use the factorisation
@@ -253,12 +253,7 @@ def pack_banded(D: np.ndarray, U: np.ndarray, damping: np.ndarray | float = 0.0)
 
 def banded_matvec(D: np.ndarray, U: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(J^T J) v for the block-tridiagonal matrix given by D, U."""
-    v = v.reshape(-1, 6)
-    out = np.einsum("kij,kj->ki", D, v)
-    if len(U):
-        out[:-1] += np.einsum("kij,kj->ki", U, v[1:])
-        out[1:] += np.einsum("kji,kj->ki", U, v[:-1])
-    return out.ravel()
+    return banded.matvec(D, U, v)
 
 
 def solve_banded(
@@ -300,7 +295,9 @@ def solve_banded(
             it -= 1
             break
         try:
-            dx = solveh_banded(pack_banded(D, U, lam * diag), -g, check_finite=False)
+            damped = D.copy()
+            damped[:, range(6), range(6)] += lam * diag.reshape(-1, 6)
+            dx = banded.solve(banded.factor(damped, U), -g)
         except LinAlgError:
             lam, nu = lam * nu, nu * 2.0
             continue
@@ -342,28 +339,14 @@ def solve_banded(
     )
 
 
-@functools.cache
-def _lapack_pbtrf_pbtrs():
-    """LAPACK's banded Cholesky factorisation and solve with a factor (double precision)."""
-    return get_lapack_funcs(("pbtrf", "pbtrs"), (np.zeros(1),))
+def factor_banded_spd(ab: np.ndarray) -> banded.Factor | banded.BandFactor:
+    """Factor of A symmetric positive definite given in upper band form ab (12, 6k); may overwrite ab."""
+    return banded.factor_band(ab, 6)
 
 
-def factor_banded_spd(ab: np.ndarray) -> np.ndarray:
-    """Cholesky factor (upper band form) of A symmetric positive definite in band form ab; overwrites ab."""
-    c, info = _lapack_pbtrf_pbtrs()[0](ab, lower=0, overwrite_ab=1)
-    if info > 0:
-        raise LinAlgError(f"{info}th leading minor not positive definite")
-    if info < 0:
-        raise ValueError(f"illegal value in argument {-info} of pbtrf")
-    return c
-
-
-def solve_with_factor(c: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve A x = b given the band Cholesky factor of A (``factor_banded_spd``)."""
-    x, info = _lapack_pbtrf_pbtrs()[1](c, b, lower=0)
-    if info < 0:
-        raise ValueError(f"illegal value in argument {-info} of pbtrs")
-    return x
+def solve_with_factor(c: banded.Factor | banded.BandFactor, b: np.ndarray) -> np.ndarray:
+    """Solve A x = b given the factor of A (``factor_banded_spd``)."""
+    return banded.solve(c, b)
 
 
 @functools.lru_cache(maxsize=8)
@@ -403,15 +386,9 @@ def _model_from_linearisation(terms: T.Terms, lin: WindowModel) -> tuple[np.ndar
     return x_lin, ab, g
 
 
-@functools.cache
-def _blas_sbmv():
-    """BLAS symmetric band matrix-vector product (double precision), looked up once."""
-    return get_blas_funcs(("sbmv",), (np.zeros(1),))[0]
-
-
 def band_matvec(ab: np.ndarray, v: np.ndarray) -> np.ndarray:
     """A v for A symmetric in upper band form ab (12, 6k) (as ``banded_matvec`` on D, U)."""
-    return _blas_sbmv()(BAND_U, 1.0, ab, v, lower=0)
+    return banded.upper_band_matvec(ab, v)
 
 
 def _hold_in_band(ab: np.ndarray, fixed: np.ndarray) -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from posefix.core.drift.base import MEDIAN_EFFICIENCY, edit_offsets, fill_gaps
+from posefix.core.filters import running_median, running_min
 
 TRANSIENT_CHI2 = 13.8  # 99.9 % point of a chi-square with 2 degrees of freedom
 
@@ -29,14 +30,12 @@ def gnss_transient(u_h: np.ndarray, short: int, long: int) -> np.ndarray:
     still catching up, for at least ``short`` keyframes in a row.  Zero for a run without
     separate GNSS (u = 0).
     """
-    from scipy.ndimage import median_filter, minimum_filter1d
-
     k = len(u_h)
     if k < 2:
         return np.zeros(k)
     u = fill_gaps(np.asarray(u_h, dtype=float))
     short, long = max(int(short), 1), max(int(long), 1)
-    dev = median_filter(u, size=(short, 1), mode="nearest") - median_filter(u, size=(long, 1), mode="nearest")
+    dev = running_median(u, short) - running_median(u, long)
     du = np.diff(u, axis=0)
     var_w = (1.4826 * np.median(np.abs(du - np.median(du, axis=0)), axis=0)) ** 2 / 2.0  # per axis
     var_dev = MEDIAN_EFFICIENCY**2 * var_w * (1.0 / short + 1.0 / long)
@@ -44,7 +43,7 @@ def gnss_transient(u_h: np.ndarray, short: int, long: int) -> np.ndarray:
         return np.zeros(k)
     # a transient lasts: a burst of outliers long enough to carry one median (3 in 5) does not
     # (kept only where ``short`` keyframes in a row stand out)
-    return minimum_filter1d(np.sum(dev**2 / var_dev, axis=1), short, mode="nearest")
+    return running_min(np.sum(dev**2 / var_dev, axis=1), short)
 
 
 def shape_change_evidence(transient: np.ndarray, sideways_m: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from posefix.core.drift.base import MEDIAN_EFFICIENCY, DriftEstimate, DriftParam
 from posefix.core.drift.bias import MAX_TAU_S, MIN_TAU_S, bias_at, estimate_walk, local_walk, smooth_gauss_markov
 from posefix.core.drift.levels import GnssLevels, level_bias
 from posefix.core.drift.steps import GnssSteps, gnss_steps, step_window, steps_confirmed_by_edits, suspect_intervals
+from posefix.core.filters import chi2_upper_quantile
 
 
 def estimate_drift(
@@ -105,13 +106,11 @@ def estimate_drift(
     # edits of more than twice the offsets' noise (the pooled estimate of q is rough), or all
     # the offsets together beyond the 99 % point of the chi-square they would follow (a few
     # edits that agree on one offset: their median is a poor estimate, their sum is not).
-    from scipy.special import chdtri  # ~35 ms of import, once (scipy.ndimage loads it too); scipy.stats: ~0.4 s
-
     typical_dt = float(np.median(np.diff(t_e))) if len(t_e) > 1 else float(kf_t_s[-1] - kf_t_s[0])
     median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise_h[0] / len(t_e))
     together = float(np.sum(np.sum(d[:, :2] ** 2, axis=1) / noise_h))
     detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise_h[0]
-                    or together > chdtri(2 * len(t_e), 0.01))
+                    or together > chi2_upper_quantile(2 * len(t_e), 0.01))
     if held is not None:
         detected = held.detected
     if not detected:

@@ -28,7 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from posefix.core import banded
 from posefix.core.drift.base import DriftEstimate, DriftParams, fill_gaps, keyframe_means, keyframes_in, white_sigma
+from posefix.core.filters import running_median
 
 LEVEL_WINDOW_S = 20.0  # line fits on each side of a candidate jump
 LEVEL_GAP_S = 3.0  # left out on each side: a fix moves onto its new level within seconds
@@ -180,10 +182,8 @@ def gnss_levels(t_s: np.ndarray, u: np.ndarray, kf_t_s: np.ndarray) -> GnssLevel
     use = ok.copy()
     if ok.sum() > 9:
         # outliers: far from the median of their neighbours (a 50 m fix among good ones)
-        from scipy.ndimage import median_filter
-
         filled = fill_gaps(u_m)
-        med = np.column_stack([median_filter(filled[:, j], 9, mode="nearest") for j in range(2)])
+        med = running_median(filled, 9)
         use &= np.hypot(*(filled - med).T) <= 5.0 * sigma_w + 1.0
     jumps, jump_m = find_level_jumps(np.where(use[:, None], u_m, np.nan), sigma_w, window, gap) \
         if len(kf_t_s) >= 2 * (window + gap) + 1 else (np.zeros(0, np.int64), np.zeros((0, 2)))
@@ -267,8 +267,6 @@ def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e:
     banded Cholesky solve (both axes at once: they share the information matrix); the
     variances from columns of the inverse (``level_variance_at_levels``).
     """
-    from scipy.linalg import cho_solve_banded, cholesky_banded
-
     k = len(t_s)
     ramp = ramp_keyframes(t_s)
     Dg, L, w = _level_blocks(t_s, levels, edit_kf, sigma_u, sigma_e, ramp)
@@ -279,23 +277,15 @@ def solve_levels(t_s, levels: GnssLevels, edit_kf, y_m, sigma_u: float, sigma_e:
     g[:, 0] -= w[:, None] * u
     g[:, 2] += w[:, None] * u
     np.add.at(g[:, 0], np.asarray(edit_kf, dtype=np.int64), np.asarray(y_m, dtype=float) / sigma_u**2)
-    # upper banded storage, bandwidth 5: ab[5 + row - col, col]
-    n = 3 * k
-    ab = np.zeros((6, n))
-    for r in range(3):
-        for s in range(r, 3):
-            ab[5 + r - s, np.arange(k) * 3 + s] = Dg[:, r, s]
-    for r in range(3):  # H[3i + r, 3(i+1) + s] = L[i][s, r]
-        for s in range(3):
-            ab[5 + r - (3 + s), np.arange(1, k) * 3 + s] = L[:, s, r]
-    cb = cholesky_banded(ab, check_finite=False)
-    x = cho_solve_banded((cb, False), g.reshape(n, 2), check_finite=False).reshape(k, 3, 2)
-    var_c = level_variance_at_levels(cb, *level_breaks(levels, ramp)) if want_variance else None
+    # H[3i + r, 3(i+1) + s] = L[i][s, r]: the upper blocks are L transposed
+    factor = banded.factor(Dg, L.transpose(0, 2, 1))
+    x = banded.solve(factor, g.reshape(3 * k, 2)).reshape(k, 3, 2)
+    var_c = level_variance_at_levels(factor, *level_breaks(levels, ramp)) if want_variance else None
     return x[:, 2], x[:, 0], var_c
 
 
-def level_variance_at_levels(cb: np.ndarray, breaks: np.ndarray, half: np.ndarray) -> np.ndarray:
-    """Marginal variance of the level (k,) from the banded Cholesky factor ``cb`` of the information matrix.
+def level_variance_at_levels(factor: banded.Factor, breaks: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Marginal variance of the level (k,) from the factor (``banded.factor``) of the information matrix.
 
     Between jumps the level is one constant (its wander is centimetres over a run), so its
     variance is the same at every keyframe of a level: it is solved exactly (a column of the
@@ -304,16 +294,14 @@ def level_variance_at_levels(cb: np.ndarray, breaks: np.ndarray, half: np.ndarra
     the keyframes around it take.  O(k (levels +
     jumps)) instead of a per-keyframe recursion.
     """
-    from scipy.linalg import cho_solve_banded
-
-    k = cb.shape[1] // 3
+    k = factor.n
     jumps = np.asarray(breaks, dtype=np.int64)
     bounds = np.concatenate([[0], jumps, [k]])
     mids = (bounds[:-1] + bounds[1:]) // 2
     at = np.unique(np.clip(np.concatenate([mids, jumps]), 0, k - 1))
     E = np.zeros((3 * k, len(at)))
     E[3 * at + 2, np.arange(len(at))] = 1.0
-    X = cho_solve_banded((cb, False), E, check_finite=False)
+    X = banded.solve(factor, E)
     exact = X[3 * at + 2, np.arange(len(at))]
     seg = np.searchsorted(jumps, np.arange(k), side="right")  # level of each keyframe
     var = np.empty(k)

@@ -1,0 +1,262 @@
+"""Symmetric positive definite block-tridiagonal systems in numpy: factor once, solve many.
+
+The keyframe problem's normal equations (6x6 blocks, ``solver``) and the GNSS level model's
+information matrix (3x3 blocks, ``drift.levels``) are block-tridiagonal:
+
+    A = [[D_0,   U_0,                 ],
+         [U_0^T, D_1,   U_1,          ],
+         [       U_1^T, D_2,   ...    ]],   D (n, b, b) symmetric, U (n-1, b, b).
+
+``factor`` eliminates them by block cyclic reduction (odd-even elimination): the odd blocks
+are eliminated at once, which leaves a block-tridiagonal Schur complement on the even
+blocks, half the size, and so on.  This is block Cholesky after the odd-even (nested
+dissection) permutation, so it is as stable as Cholesky on an SPD matrix, with O(n b^3)
+work in log2(n) rounds of batched numpy operations instead of a loop over blocks.  With
+``L_i L_i^T = D_i`` (i odd) and ``G = L_i^-1 [A_i,i-1  A_i,i+1]`` the even blocks become
+
+    D'_i-1 = D_i-1 - G_l^T G_l,   D'_i+1 = D_i+1 - G_r^T G_r,   U'(i-1, i+1) = -G_l^T G_r,
+
+and the right-hand side ``b'_i+-1 = b_i+-1 - G^T (L_i^-1 b_i)``; back-substitution gives
+``x_i = L_i^-T (L_i^-1 b_i - G_l x_i-1 - G_r x_i+1)``.
+
+Small systems take this path so that a short ``posefix correct`` imports no scipy
+(``scipy.linalg`` costs about a quarter of a second of start-up, more than all its solves).
+From ``LAPACK_FROM_BLOCKS`` blocks on, LAPACK's banded Cholesky (``pbtrf``/``pbtrs``) is
+2-3x faster per factorisation and the import is then a small share of the run: the
+factor is LAPACK's there.  A matrix that is not positive definite raises
+``numpy.linalg.LinAlgError`` either way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import functools
+
+import numpy as np
+
+LinAlgError = np.linalg.LinAlgError
+
+
+@dataclass(frozen=True)
+class Round:
+    """One elimination round: the odd blocks' inverse Cholesky factors Li (m, b, b) and
+    ``G = Li [A_i,i-1  A_i,i+1]`` (m, b, 2b) (the last odd block of an even count has no
+    right neighbour: zeros there)."""
+
+    Li: np.ndarray
+    G: np.ndarray
+
+
+@dataclass(frozen=True)
+class BandFactor:
+    """LAPACK's upper band Cholesky factor cb (2b, n b) of a large system."""
+
+    cb: np.ndarray
+    n: int
+    b: int
+
+
+@dataclass(frozen=True)
+class Factor:
+    """``factor``'s answer: the rounds, then the inverse Cholesky factor (m b, m b) of the
+    last m <= ``DENSE_TAIL_BLOCKS`` blocks' Schur complement, assembled dense."""
+
+    rounds: tuple[Round, ...]
+    last_Li: np.ndarray
+    n: int
+    b: int
+
+
+def _t(a: np.ndarray) -> np.ndarray:
+    return a.transpose(0, 2, 1)
+
+
+# The last few blocks are factored as one dense matrix: fewer rounds of small numpy calls.
+DENSE_TAIL_BLOCKS = 8
+# Below this many blocks, numpy's batched LAPACK calls (one per block, but two calls in all)
+# beat the entry-by-entry loop (some 60 numpy calls whatever the batch).
+BATCHED_LAPACK_BELOW = 200
+# From this many blocks on, the factor is LAPACK's banded Cholesky (scipy).
+LAPACK_FROM_BLOCKS = 512
+
+
+def _inv_cholesky(D: np.ndarray) -> np.ndarray:
+    """L^-1 for L L^T = D (m, b, b) batched; raises LinAlgError unless every D is positive definite.
+
+    Written out entry by entry over the batch (vectors of length m, contiguous): numpy's
+    batched ``cholesky`` and ``inv`` call LAPACK once per 6x6 block, several times slower.
+    """
+    if len(D) < BATCHED_LAPACK_BELOW:
+        return np.linalg.inv(np.linalg.cholesky(D))
+    b = D.shape[1]
+    A = np.ascontiguousarray(D.transpose(1, 2, 0))  # (b, b, m)
+    L = np.zeros_like(A)
+    for j in range(b):
+        pivot = A[j, j] - np.einsum("km,km->m", L[j, :j], L[j, :j])
+        if not (pivot > 0.0).all():  # also catches NaN
+            raise LinAlgError("Matrix is not positive definite")
+        L[j, j] = np.sqrt(pivot)
+        for i in range(j + 1, b):
+            L[i, j] = (A[i, j] - np.einsum("km,km->m", L[i, :j], L[j, :j])) / L[j, j]
+    Li = np.zeros_like(A)
+    for i in range(b):
+        Li[i, i] = 1.0 / L[i, i]
+        for j in range(i):
+            Li[i, j] = -np.einsum("km,km->m", L[i, j:i], Li[j:i, j]) * Li[i, i]
+    return np.ascontiguousarray(Li.transpose(2, 0, 1))
+
+
+def factor(D: np.ndarray, U: np.ndarray) -> Factor | BandFactor:
+    """Factor the block-tridiagonal SPD matrix with diagonal blocks D (n, b, b) and upper
+    blocks U (n-1, b, b) (``U[i] = A[i, i+1]``).  The inputs are not changed."""
+    D = np.asarray(D, dtype=float)
+    U = np.asarray(U, dtype=float)
+    n, b = D.shape[0], D.shape[1]
+    if n == 0:
+        raise ValueError("empty system")
+    if n >= LAPACK_FROM_BLOCKS:
+        return _lapack_factor(to_upper_band(D, U), b)
+    rounds = []
+    while D.shape[0] > DENSE_TAIL_BLOCKS:
+        m = D.shape[0]
+        ne, no = (m + 1) // 2, m // 2  # even blocks kept; odd ones 1, 3, ... eliminated
+        r = ne - 1  # odd blocks with a right neighbour
+        Li = _inv_cholesky(D[1::2])
+        C = np.zeros((no, b, 2 * b))
+        C[:, :, :b] = _t(U[0::2])  # A[i, i-1] = U[i-1]^T
+        C[:r, :, b:] = U[1::2]  # A[i, i+1]
+        G = Li @ C
+        S = _t(G) @ G  # [[G_l^T G_l, G_l^T G_r], [., G_r^T G_r]]
+        Dn = D[0::2].copy()
+        Dn[:no] -= S[:, :b, :b]
+        Dn[1:] -= S[:r, b:, b:]
+        U = -S[:r, :b, b:]
+        D = 0.5 * (Dn + _t(Dn))  # symmetric to the last bit: the next Cholesky reads one triangle
+        rounds.append(Round(Li, G))
+    return Factor(tuple(rounds), _inv_cholesky(_dense(D, U)[None])[0], n, b)
+
+
+def _dense(D: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """The block-tridiagonal matrix (m b, m b) as a dense array."""
+    m, b = D.shape[0], D.shape[1]
+    A = np.zeros((m, b, m, b))
+    k = np.arange(m)
+    A[k, :, k, :] = D
+    A[k[:-1], :, k[1:], :] = U
+    A[k[1:], :, k[:-1], :] = _t(U)
+    return A.reshape(m * b, m * b)
+
+
+def factor_band(ab: np.ndarray, b: int) -> Factor | BandFactor:
+    """``factor`` of the matrix in LAPACK's upper band form ab (2b, n b) (overwritten when large)."""
+    if ab.shape[1] // b >= LAPACK_FROM_BLOCKS:
+        return _lapack_factor(ab, b)
+    return factor(*from_upper_band(ab, b))
+
+
+def solve(F: Factor | BandFactor, rhs: np.ndarray) -> np.ndarray:
+    """x with A x = rhs for A factored in F; rhs (n b,) or (n b, k) (block by block, as the state)."""
+    rhs = np.asarray(rhs, dtype=float)
+    if isinstance(F, BandFactor):
+        x, info = _lapack()[1](F.cb, rhs, lower=0)
+        if info < 0:
+            raise ValueError(f"illegal value in argument {-info} of pbtrs")
+        return x
+    shape = rhs.shape
+    b = F.b
+    y = rhs.reshape(F.n, b, -1)
+    cs = []
+    for rd in F.rounds:
+        c = rd.Li @ y[1::2]  # L_i^-1 b_i
+        no = len(c)
+        w = _t(rd.G) @ c  # (G_l^T c; G_r^T c)
+        yn = y[0::2].copy()
+        yn[:no] -= w[:, :b]
+        r = len(yn) - 1
+        yn[1:] -= w[:r, b:]
+        cs.append(c)
+        y = yn
+    m = len(y)
+    x = (F.last_Li.T @ (F.last_Li @ y.reshape(m * b, -1))).reshape(y.shape)
+    for rd, c in zip(reversed(F.rounds), reversed(cs)):
+        no, ne = len(c), len(x)
+        full = np.empty((ne + no,) + x.shape[1:])
+        full[0::2] = x
+        nb = np.zeros((no, 2 * b, x.shape[2]))  # each odd block's neighbours (right: 0 past the end)
+        nb[:, :b] = x[:no]
+        nb[:ne - 1, b:] = x[1:]
+        full[1::2] = _t(rd.Li) @ (c - rd.G @ nb)
+        x = full
+    return x.reshape(shape)
+
+
+def matvec(D: np.ndarray, U: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A v for the block-tridiagonal A given by D (n, b, b), U (n-1, b, b); v (n b,)."""
+    b = D.shape[1]
+    v = np.asarray(v, dtype=float).reshape(-1, b)
+    out = np.einsum("kij,kj->ki", D, v)
+    if len(U):
+        out[:-1] += np.einsum("kij,kj->ki", U, v[1:])
+        out[1:] += np.einsum("kji,kj->ki", U, v[:-1])
+    return out.ravel()
+
+
+def from_upper_band(ab: np.ndarray, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """(D, U) of the symmetric matrix in LAPACK's upper band form ``ab`` (2b, n b)
+    (``ab[2b - 1 + i - j, j] = A[i, j]`` for j - 2b < i <= j), block size b."""
+    bw = ab.shape[0] - 1
+    if bw != 2 * b - 1:
+        raise ValueError(f"band of {bw} super-diagonals is not block-tridiagonal with {b}x{b} blocks")
+    n = ab.shape[1] // b
+    i, j = np.meshgrid(np.arange(b), np.arange(b), indexing="ij")
+    blk = np.arange(n)[:, None, None]
+    # D block k: A[kb + i, kb + j] for i <= j, mirrored
+    Du = np.where(i <= j, ab[np.where(i <= j, bw + i - j, bw)[None], blk * b + j[None]], 0.0)
+    D = Du + np.where(i > j, 1.0, 0.0) * _t(Du)
+    blk_u = np.arange(n - 1)[:, None, None]
+    U = ab[(bw + i - b - j)[None], (blk_u + 1) * b + j[None]]  # A[kb + i, (k+1)b + j]
+    return D, U
+
+
+def upper_band_matvec(ab: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A v for A symmetric in LAPACK's upper band form ``ab`` (bw + 1, N); v (N,)."""
+    bw = ab.shape[0] - 1
+    v = np.asarray(v, dtype=float)
+    out = ab[bw] * v
+    for d in range(1, min(bw, len(v) - 1) + 1):
+        a = ab[bw - d, d:]  # A[j - d, j]
+        out[:-d] += a * v[d:]
+        out[d:] += a * v[:-d]
+    return out
+
+
+def to_upper_band(D: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """LAPACK's upper band form (2b, n b) of the block-tridiagonal matrix D, U (Fortran order)."""
+    n, b = D.shape[0], D.shape[1]
+    bw = 2 * b - 1
+    i, j = np.meshgrid(np.arange(b), np.arange(b), indexing="ij")
+    up = i <= j
+    ab = np.zeros((bw + 1, n * b), order="F")
+    blk = np.arange(n)[:, None]
+    ab[(bw + i - j)[up][None, :], blk * b + j[up][None, :]] = D[:, i[up], j[up]]
+    if n > 1:
+        ab[(bw + i - b - j).ravel()[None, :], (blk[:-1] + 1) * b + j.ravel()[None, :]] = U.reshape(n - 1, b * b)
+    return ab
+
+
+@functools.cache
+def _lapack():
+    """LAPACK's banded Cholesky factorisation and solve with its factor (scipy, imported on first use)."""
+    from scipy.linalg import get_lapack_funcs
+
+    return get_lapack_funcs(("pbtrf", "pbtrs"), (np.zeros(1),))
+
+
+def _lapack_factor(ab: np.ndarray, b: int) -> BandFactor:
+    cb, info = _lapack()[0](ab, lower=0, overwrite_ab=1)
+    if info > 0:
+        raise LinAlgError(f"{info}th leading minor not positive definite")
+    if info < 0:
+        raise ValueError(f"illegal value in argument {-info} of pbtrf")
+    return BandFactor(cb, ab.shape[1] // b, b)

@@ -1,0 +1,109 @@
+"""The numpy block-tridiagonal solver (core/banded.py) and running filters (core/filters.py)
+against scipy's LAPACK banded Cholesky, ndimage filters and chdtri, on random inputs."""
+
+import numpy as np
+import pytest
+from scipy.linalg import solveh_banded
+from scipy.ndimage import median_filter, minimum_filter1d
+from scipy.special import chdtri
+
+from posefix.core import banded
+from posefix.core.filters import chi2_upper_quantile, running_median, running_min
+from posefix.core.solver import pack_banded
+
+
+def random_system(rng, n: int, b: int, ridge: float = 1.0):
+    """J^T J + ridge I of rows r_k = A_k x_k + B_k x_k+1: SPD, block-tridiagonal."""
+    A, B = rng.normal(size=(n, b, b)), rng.normal(size=(n - 1, b, b))
+    D = np.einsum("kji,kjl->kil", A, A) + ridge * np.eye(b)
+    D[1:] += np.einsum("kji,kjl->kil", B, B)
+    U = np.einsum("kji,kjl->kil", A[:-1], B)
+    return D, U
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 8, 9, 17, 121, 1500])
+@pytest.mark.parametrize("b", [3, 6])
+def test_solve_matches_lapack_banded_cholesky(n, b):
+    rng = np.random.default_rng(n * 10 + b)
+    D, U = random_system(rng, n, b)
+    rhs = rng.normal(size=(n * b, 3))
+    x = banded.solve(banded.factor(D, U), rhs)
+    ab = np.zeros((2 * b, n * b))  # LAPACK upper band of the same matrix, built entry by entry
+    dense = np.zeros((n * b, n * b))
+    for k in range(n):
+        dense[k * b:(k + 1) * b, k * b:(k + 1) * b] = D[k]
+        if k < n - 1:
+            dense[k * b:(k + 1) * b, (k + 1) * b:(k + 2) * b] = U[k]
+            dense[(k + 1) * b:(k + 2) * b, k * b:(k + 1) * b] = U[k].T
+    for j in range(n * b):
+        for i in range(max(0, j - 2 * b + 1), j + 1):
+            ab[2 * b - 1 + i - j, j] = dense[i, j]
+    ref = solveh_banded(ab, rhs)
+    assert np.allclose(x, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    assert np.allclose(dense @ x, rhs, atol=1e-10 * np.abs(rhs).max())
+    D2, U2 = banded.from_upper_band(ab, b)
+    assert np.array_equal(D2, D) and np.array_equal(U2, U)
+    v = rng.normal(size=n * b)
+    assert np.allclose(banded.upper_band_matvec(ab, v), dense @ v, rtol=1e-12, atol=1e-12)
+    assert np.allclose(banded.matvec(D, U, v), dense @ v, rtol=1e-12, atol=1e-12)
+    assert np.allclose(banded.solve(banded.factor(D, U), rhs[:, 0]), x[:, 0])
+
+
+def test_large_batches_take_the_entry_by_entry_path():
+    rng = np.random.default_rng(3)
+    n = 2 * banded.BATCHED_LAPACK_BELOW + 5
+    D, U = random_system(rng, n, 6)
+    rhs = rng.normal(size=6 * n)
+    x = banded.solve(banded.factor(D, U), rhs)
+    assert np.allclose(x, solveh_banded(pack_banded(D, U), rhs), rtol=1e-9, atol=1e-12)
+
+
+def test_long_systems_take_lapack_and_agree_with_cyclic_reduction(monkeypatch):
+    rng = np.random.default_rng(4)
+    n = banded.LAPACK_FROM_BLOCKS + 3
+    D, U = random_system(rng, n, 6)
+    rhs = rng.normal(size=(6 * n, 2))
+    F = banded.factor(D, U)
+    assert isinstance(F, banded.BandFactor)
+    x = banded.solve(F, rhs)
+    monkeypatch.setattr(banded, "LAPACK_FROM_BLOCKS", 10**9)
+    F2 = banded.factor_band(pack_banded(D, U), 6)
+    assert isinstance(F2, banded.Factor)
+    assert np.allclose(banded.solve(F2, rhs), x, rtol=1e-9, atol=1e-12)
+    assert np.array_equal(banded.to_upper_band(D, U), pack_banded(D, U))
+
+
+@pytest.mark.parametrize("n", [1, 5, 3000])
+def test_not_positive_definite_raises(n):
+    D, U = random_system(np.random.default_rng(1), n, 6)
+    D[n // 2] = -np.eye(6)
+    with pytest.raises(banded.LinAlgError):
+        banded.factor(D, U)
+
+
+def test_solver_band_form_round_trips():
+    D, U = random_system(np.random.default_rng(2), 40, 6)
+    D2, U2 = banded.from_upper_band(pack_banded(D, U), 6)
+    assert np.array_equal(D2, D) and np.array_equal(U2, U)
+
+
+@pytest.mark.parametrize("k", [1, 2, 5, 100, 1000])
+@pytest.mark.parametrize("size", [1, 2, 4, 5, 9, 60, 61])
+def test_running_filters_match_scipy_nearest_mode(k, size):
+    rng = np.random.default_rng(k + size)
+    x = rng.normal(size=(k, 2))
+    x[rng.random((k, 2)) < 0.1] = 5.0  # ties and outliers
+    assert np.array_equal(running_median(x, size), median_filter(x, size=(size, 1), mode="nearest"))
+    assert np.array_equal(running_median(x[:, 0], size), median_filter(x[:, 0], size, mode="nearest"))
+    assert np.array_equal(running_min(x[:, 1], size), minimum_filter1d(x[:, 1], size, mode="nearest"))
+
+
+@pytest.mark.parametrize("df", [2, 4, 10, 72, 720])
+@pytest.mark.parametrize("p", [0.001, 0.01, 0.5, 0.99])
+def test_chi2_quantile_matches_chdtri(df, p):
+    assert chi2_upper_quantile(df, p) == pytest.approx(chdtri(df, p), rel=1e-10)
+
+
+def test_chi2_quantile_refuses_odd_degrees():
+    with pytest.raises(ValueError):
+        chi2_upper_quantile(3, 0.01)
