@@ -55,6 +55,18 @@ def test_simulate_writes_run_truth_edits(simulated):
     assert len(json.loads((simulated / "edits.json").read_text())["edits"]) == 10
 
 
+def test_simulate_family_builds_the_families_pose_and_gnss(tmp_path):
+    res = ok("simulate", "--family", "no_gnss", "--duration-s", 300, "--rate-hz", 2, "--edit-every-s", 60, "--seed", 3,
+             "--out", tmp_path)
+    assert "family no_gnss" in res.stdout and "601 samples" in res.stdout
+    run = read_run(tmp_path / "run.csv")
+    assert run.n == 601 and not run.has_gnss
+    out = ok("simulate", "--family", "ekf", "--duration-s", 300, "--rate-hz", 2, "--out", tmp_path / "ekf")
+    assert read_run(tmp_path / "ekf" / "run.csv").has_gnss and "raw GNSS" in out.stdout
+    assert_one_line_error(posefix("simulate", "--family", "kalman", "--out", tmp_path / "x"), "--family", "kalman", "ekf")
+    assert not (tmp_path / "x").exists()
+
+
 def test_correct_then_evaluate_improves_the_run(simulated, tmp_path):
     out = tmp_path / "corrected.csv"
     res = ok("correct", simulated / "run.csv", "--edits", simulated / "edits.json", "--output", out)

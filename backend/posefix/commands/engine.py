@@ -258,28 +258,39 @@ def simulate_command(
     edit_every_s: float = typer.Option(100.0, "--edit-every-s", min=0.0, help="One edit (true position + click noise) every this many seconds, at the middle of each interval; 0 for none."),
     seed: int = typer.Option(1, "--seed", help="Random seed: the same options give the same drive."),
     regime: str = typer.Option("mixed", "--regime", help="GNSS error regime: white (noise), drift (pose bias moving a few cm/s, raw GNSS beside), canyon (offset jumps of 5-20 m for minutes, inherited by the pose), canyon_ins (the same jumps in the raw GNSS only; the pose bridged them), outliers (50 m bursts), mixed (canyon + outliers + drift)."),
+    family: Optional[str] = typer.Option(None, "--family", help="Build the reported pose the way a real unit does instead of a regime's error (posefix.core.families): ekf (odometry and yaw rate fused with gated single-point GNSS), ekf_smoothed (the same forward-backward), ins_lowpass (a GNSS/INS pose following a low-passed copy of the fix's bias), scale_heading (dead reckoning with a scale error and a heading bias), time_offset (pose stamped late against GNSS), outage (ekf with three minutes without fixes), no_gnss (ekf, no gnss columns). GNSS at --gnss-rate-hz (1 Hz unless given)."),
     osm: Optional[Path] = typer.Option(None, "--osm", metavar="FILE.pbf", help="Drive along the streets of this OpenStreetMap extract (e.g. ../shared/data/osm/helsinki.osm.pbf)."),
     click_noise_m: float = typer.Option(0.5, "--click-noise-m", min=0.0, help="Operator click error of each edit, metres (1 sigma per horizontal axis)."),
-    gnss_rate_hz: float = typer.Option(10.0, "--gnss-rate-hz", min=0.01, help="Raw GNSS fix rate, Hz (held between fixes)."),
+    gnss_rate_hz: Optional[float] = typer.Option(None, "--gnss-rate-hz", min=0.01, help="Raw GNSS fix rate, Hz (held between fixes); default 10, with --family 1."),
     no_gnss_columns: bool = typer.Option(False, "--no-gnss-columns", help="Leave the raw GNSS columns out of run.csv (the location term then uses the reported pose)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
 ) -> None:
     """Simulate a drive with ground truth: writes DIR/run.csv, DIR/truth.csv and DIR/edits.json."""
     with user_errors():
+        from posefix.core.families import FAMILIES, simulate_family
         from posefix.core.simulate import REGIMES, simulate
 
         if regime not in REGIMES:
             raise CommandError(f"--regime: unknown regime {regime!r} (known: {', '.join(REGIMES)})")
+        if family is not None and family not in FAMILIES:
+            raise CommandError(f"--family: unknown family {family!r} (known: {', '.join(FAMILIES)})")
+        if family is not None and (osm is not None or no_gnss_columns):
+            raise CommandError("--family builds its own drive and GNSS: leave out --osm and --no-gnss-columns "
+                               "(the no_gnss family has none)")
         if osm is not None and not osm.is_file():
             raise CommandError(f"--osm: {osm}: no such file")
         if out.exists() and not out.is_dir():
             raise CommandError(f"--out: {out} exists and is not a folder")
         steps = _Steps(["simulate", "write run", "write truth", "write edits"], quiet)
-        sim = simulate(
-            duration_s=duration_s, rate_hz=rate_hz, edit_every_s=edit_every_s, seed=seed, regime=regime,
-            osm_path=None if osm is None else str(osm), gnss_columns=not no_gnss_columns,
-            gnss_rate_hz=gnss_rate_hz, click_noise_m=click_noise_m, progress=steps,
-        )
+        if family is not None:
+            sim = simulate_family(family, duration_s=duration_s, rate_hz=rate_hz, edit_every_s=edit_every_s, seed=seed,
+                                  gnss_rate_hz=1.0 if gnss_rate_hz is None else gnss_rate_hz, click_noise_m=click_noise_m)
+        else:
+            sim = simulate(
+                duration_s=duration_s, rate_hz=rate_hz, edit_every_s=edit_every_s, seed=seed, regime=regime,
+                osm_path=None if osm is None else str(osm), gnss_columns=not no_gnss_columns,
+                gnss_rate_hz=10.0 if gnss_rate_hz is None else gnss_rate_hz, click_noise_m=click_noise_m, progress=steps,
+            )
         steps.done()
         from posefix.io import EditSet, Move, write_edits, write_run
 
@@ -298,7 +309,8 @@ def simulate_command(
         if not quiet:
             info = sim.info
             typer.echo(
-                f"simulated {sim.run.n} samples ({duration_s:g} s at {rate_hz:g} Hz, regime {regime}, "
+                f"simulated {sim.run.n} samples ({duration_s:g} s at {rate_hz:g} Hz, "
+                f"{'family ' + family if family else 'regime ' + regime}, "
                 f"{info['path_length_m'] / 1000:.1f} km, mean speed {info['mean_speed_mps']:.1f} m/s, "
                 f"{len(sim.edits)} edits) -> {out}/run.csv, truth.csv, edits.json"
             )

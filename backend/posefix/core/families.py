@@ -155,7 +155,7 @@ def reported_run(truth, run, p_rep_en: np.ndarray, dyaw: np.ndarray, origin, gns
 
 
 def simulate_family(family: str, duration_s: float = 1800.0, rate_hz: float = 10.0, edit_every_s: float = 100.0,
-                    seed: int = 1, gnss_rate_hz: float = 1.0):
+                    seed: int = 1, gnss_rate_hz: float = 1.0, click_noise_m: float = 0.5):
     """A ``simulate`` drive whose reported pose (and GNSS) follow ``family`` (module docstring)."""
     from posefix.core.simulate import simulate
 
@@ -163,7 +163,7 @@ def simulate_family(family: str, duration_s: float = 1800.0, rate_hz: float = 10
         raise ValueError(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
     base = "white" if family in ("ins_lowpass", "time_offset", "scale_heading") else "mixed"
     sim = simulate(duration_s=duration_s, rate_hz=rate_hz, edit_every_s=edit_every_s, seed=seed, regime=base,
-                   gnss_rate_hz=gnss_rate_hz)
+                   gnss_rate_hz=gnss_rate_hz, click_noise_m=click_noise_m)
     rng = np.random.default_rng(10_000 + seed)
     o = sim.origin
     t = sim.truth.t_s - sim.truth.t_s[0]
@@ -198,7 +198,15 @@ def simulate_family(family: str, duration_s: float = 1800.0, rate_hz: float = 10
                                 smoothed=family == "ekf_smoothed")
         dyaw = wrap(yaw_r - yaw)
     run = reported_run(sim.truth, sim.run, p_rep, dyaw, o, None if family == "no_gnss" else g, f"family {family}, seed {seed}")
-    return dataclasses.replace(sim, run=run, regime=family)
+    info = dict(sim.info, pose_error_rms_m=_h_rms(p_rep[:, :2] - p_t[:, :2]),
+                gnss_error_rms_m=float("nan") if family == "no_gnss" else _h_rms(g[:, :2] - p_t[:, :2]))
+    return dataclasses.replace(sim, run=run, regime=family, info=info)
+
+
+def _h_rms(d_m: np.ndarray) -> float:
+    """Horizontal RMS of (n,2) differences over the finite rows."""
+    ok = np.all(np.isfinite(d_m), axis=1)
+    return float(np.sqrt(np.mean(np.sum(d_m[ok] ** 2, axis=1)))) if ok.any() else float("nan")
 
 
 def _truth_yaw(p_en: np.ndarray, speed) -> np.ndarray:
