@@ -32,13 +32,18 @@ export interface Column {
   live: Int32Array;
 }
 
+/** Whether the next step evaluates every vertex: no beam, or a third of the vertices or more live. */
+export function denseStep(g: Graph, live: Int32Array, beam: number | null): boolean {
+  return beam === null || live.length >= Math.trunc(g.n / 3);
+}
+
 /**
  * The vertices to evaluate for the next step, written to `out` (count returned): with a
  * beam and under a third of the vertices live, only those one transition away from a live
  * one; else −1 (all of them).
  */
 export function candidates(g: Graph, live: Int32Array, beam: number | null, mark: Uint8Array, out: Int32Array): number {
-  if (beam === null || live.length >= Math.trunc(g.n / 3)) return -1;
+  if (denseStep(g, live, beam)) return -1;
   const k = g.k;
   const succ = g.succ;
   let lo = g.n;
@@ -126,13 +131,17 @@ export class ViterbiFilter {
     return b.fill(-1);
   }
 
+  /** The vertices the next step evaluates, in `this.cand` (count), or −1: all of them. */
+  plan(): number {
+    return candidates(this.g, this.delta.live, this.beam, this.mark, this.cand);
+  }
+
   step(trans: Float64Array, state: Float64Array | null): void {
     const { g } = this;
-    const n = g.n;
     const k = g.k;
-    const m = candidates(g, this.delta.live, this.beam, this.mark, this.cand);
+    const m = this.plan();
     const cand = m >= 0 ? this.cand : null;
-    const count = m >= 0 ? m : n;
+    const count = m >= 0 ? m : g.n;
     const d = this.delta.val;
     const pv = g.predV;
     const out = this.spare;
@@ -156,8 +165,20 @@ export class ViterbiFilter {
       out[v] = b;
       if (b > best) (best = b), (top = v);
     }
+    this.finish(back, cand, count, best, top);
+  }
+
+  /** Buffers for a step over every vertex computed elsewhere (stepDense): δ, the next δ's and the back-pointers. */
+  denseBuffers(): { d: Float64Array; out: Float64Array; back: Int8Array } {
+    return { d: this.delta.val, out: this.spare, back: this.backArray() };
+  }
+
+  /** After the relaxation wrote `this.spare` and `back` over the candidates: prune, or keep the belief at a wall. */
+  finish(back: Int8Array, cand: Int32Array | null, count: number, best: number, top: number): void {
+    const out = this.spare;
     if (best > NEG) {
       const old = this.delta;
+      const d = old.val;
       this.delta = this.prune(out, cand, count, best, this.lives.other(old.live));
       this.top = top;
       for (let i = 0; i < old.live.length; i++) d[old.live[i]] = NEG;
@@ -233,21 +254,31 @@ export class ForwardFilter {
     this.e = new Float64Array(g.k);
   }
 
-  step(trans: Float64Array, state: Float64Array | null): void {
-    const { g } = this;
-    const n = g.n;
-    const k = g.k;
-    const m = candidates(g, this.live, this.beam, this.mark, this.cand);
-    const cand = m >= 0 ? this.cand : null;
-    const count = m >= 0 ? m : n;
-    const a = this.lin;
+  /** The vertices the next step evaluates, in `this.cand` (count), or −1: all of them. */
+  plan(): number {
+    return candidates(this.g, this.live, this.beam, this.mark, this.cand);
+  }
+
+  /** e^{trans − max trans} (K,): the step's transition factors, scaled so the largest is 1. */
+  factors(trans: Float64Array): Float64Array {
     let tTop = NEG;
-    for (let j = 0; j < k; j++) if (trans[j] > tTop) tTop = trans[j];
+    for (let j = 0; j < trans.length; j++) if (trans[j] > tTop) tTop = trans[j];
     const e = this.e;
-    for (let j = 0; j < k; j++) {
+    for (let j = 0; j < trans.length; j++) {
       const tk = trans[j] - tTop;
       e[j] = tk > -300 ? Math.exp(tk) : 0;
     }
+    return e;
+  }
+
+  step(trans: Float64Array, state: Float64Array | null): void {
+    const { g } = this;
+    const k = g.k;
+    const m = this.plan();
+    const cand = m >= 0 ? this.cand : null;
+    const count = m >= 0 ? m : g.n;
+    const a = this.lin;
+    const e = this.factors(trans);
     const pv = g.predV;
     const acc = this.acc;
     const e0 = e[0];
@@ -261,6 +292,13 @@ export class ForwardFilter {
       acc[i] = s;
       if (s > best) best = s;
     }
+    this.finish(cand, count, best, state);
+  }
+
+  /** After `this.acc` holds the sums over the candidates (and `best` their largest): state scores, scale, prune. */
+  finish(cand: Int32Array | null, count: number, best: number, state: Float64Array | null): void {
+    const acc = this.acc;
+    const a = this.lin;
     if (state) {
       // log domain: log(acc) + state, as the Python filter does it
       best = NEG;
@@ -290,6 +328,58 @@ export class ForwardFilter {
     this.lin = out;
     this.live = liveOut.subarray(0, c);
   }
+
+  /** The sums of a step computed elsewhere (stepDense) go here, one per vertex. */
+  get sums(): Float64Array {
+    return this.acc;
+  }
+}
+
+/**
+ * One step of both filters. When both evaluate every vertex (an unknown start: most of the
+ * floor live), one pass reads each vertex's predecessor row once for both; otherwise each
+ * filter steps alone. The results are those of `viterbi.step` and `forward.step`.
+ */
+export function stepFilters(viterbi: ViterbiFilter, forward: ForwardFilter, trans: Float64Array, state: Float64Array | null): void {
+  if (!denseStep(viterbi.g, viterbi.delta.live, viterbi.beam) || !denseStep(forward.g, forward.live, forward.beam)) {
+    viterbi.step(trans, state);
+    forward.step(trans, state);
+    return;
+  }
+  const g = viterbi.g;
+  const n = g.n;
+  const k = g.k;
+  const pv = g.predV;
+  const { d, out, back } = viterbi.denseBuffers();
+  const a = forward.lin;
+  const e = forward.factors(trans);
+  const acc = forward.sums;
+  const t0 = trans[0];
+  const e0 = e[0];
+  let best = NEG;
+  let top = -1;
+  let sBest = 0;
+  for (let v = 0; v < n; v++) {
+    const row = v * k;
+    let u = pv[row];
+    let b = d[u] + t0;
+    let s = a[u] * e0;
+    let kb = 0;
+    for (let j = 1; j < k; j++) {
+      u = pv[row + j];
+      const c = d[u] + trans[j];
+      if (c > b) (b = c), (kb = j);
+      s += a[u] * e[j];
+    }
+    if (b > NEG) back[v] = kb;
+    if (state) b += state[v];
+    out[v] = b;
+    if (b > best) (best = b), (top = v);
+    acc[v] = s;
+    if (s > sBest) sBest = s;
+  }
+  viterbi.finish(back, null, n, best, top);
+  forward.finish(null, n, sBest, state);
 }
 
 /** Moment-matched Gaussian of a log column over the graph's vertices (see the module docstring). */

@@ -49,9 +49,10 @@ export interface Graph {
   /**
    * predV[v * k + j]: vertex u with u + offset j = v, or n when there is none (the filters'
    * value buffers hold a neutral sentinel at index n). One row of K per vertex: a filter
-   * step reads a vertex's predecessors together.
+   * step reads a vertex's predecessors together. 16-bit when the floor has under 65 535
+   * vertices: half the bytes a step streams through the cache.
    */
-  predV: Int32Array;
+  predV: Uint16Array | Int32Array;
 }
 
 export interface TrackerModel {
@@ -77,13 +78,13 @@ function numbers(z: Map<string, NpyArray>, file: string, name: string): number[]
 }
 
 /** Dense successor and predecessor tables from the vertices and the transition bits. */
-export function transitionTables(ij: ArrayLike<number>, transMask: ArrayLike<number>, offsets: ArrayLike<number>, rows: number, cols: number): { succ: Int32Array; predV: Int32Array } {
+export function transitionTables(ij: ArrayLike<number>, transMask: ArrayLike<number>, offsets: ArrayLike<number>, rows: number, cols: number): { succ: Int32Array; predV: Uint16Array | Int32Array } {
   const n = transMask.length;
   const k = offsets.length / 2;
   const grid = new Int32Array(rows * cols).fill(-1);
   for (let v = 0; v < n; v++) grid[ij[2 * v + 1] * cols + ij[2 * v]] = v;
   const succ = new Int32Array(n * k).fill(-1);
-  const predV = new Int32Array(n * k).fill(n);
+  const predV = n < 0xffff ? new Uint16Array(n * k).fill(n) : new Int32Array(n * k).fill(n);
   for (let j = 0; j < k; j++) {
     const dc = offsets[2 * j];
     const dr = offsets[2 * j + 1];

@@ -15,7 +15,7 @@
  * a known point, a WiFi fix's Gaussian, or uniform. Each step's posterior also gives its
  * modes and the converged flag (./modes.ts, the definition of posefix.mapmatch.modes).
  */
-import { ForwardFilter, type Summary, ViterbiFilter, gaussianSummary } from "./filters";
+import { ForwardFilter, type Summary, ViterbiFilter, gaussianSummary, stepFilters } from "./filters";
 import { type FingerprintMap, type WifiFix, predictScan, scanPeaks } from "./fingerprints";
 import type { TrackerModel } from "./model";
 import { type Modes, posteriorModes } from "./modes";
@@ -203,8 +203,7 @@ export class Tracker {
   step(sx: number, sy: number, t_ms: number, wifi: WifiFix | null = null, peak: Peak | null = null, wifiT_ms?: number, peakT_ms?: number): TrackPoint {
     const trans = this.transitionScores(sx, sy);
     const state = this.stateScores(wifi, wifiT_ms ?? t_ms, peak, peakT_ms ?? t_ms);
-    this.viterbi.step(trans, state);
-    this.forward.step(trans, state);
+    stepFilters(this.viterbi, this.forward, trans, state);
     this.nSteps++;
     const last = this.cumHist[this.cumHist.length - 1];
     this.cumHist.push([last[0] + sx, last[1] + sy]);
