@@ -175,6 +175,17 @@ class TestPreview:
         assert [(x["index"], x["reason"]) for x in body["refusals"]] == [(31, "not_adjustable")]
         assert abs(body["positions"][31][0] - xy[31, 0]) < 1e-6
 
+    def test_stale_base_answers_409_as_submitting_would(self, client, users, app):
+        rid = new_run(client, users)
+        assert client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "deleted": [3]}, headers=users["admin"]).status_code == 202
+        _, xy = kf_coords(client, users["admin"], rid, revision=0)
+        body = {"base_revision": 0, "moves": [{"index": 30, "lon": xy[30, 0] + 2 * METRE_LON, "lat": xy[30, 1]}]}
+        pv = client.post(f"/api/v1/runs/{rid}/preview", json=body, headers=users["reviewer"])
+        ed = client.post(f"/api/v1/runs/{rid}/edits", json=body, headers=users["reviewer"])
+        assert pv.status_code == ed.status_code == 409
+        assert pv.json()["error"] == ed.json()["error"] == "stale_revision"
+        assert pv.json()["current_revision"] == ed.json()["current_revision"] == 1
+
     def test_preview_needs_editor_role(self, client, users):
         rid = new_run(client, users)
         r = client.post(f"/api/v1/runs/{rid}/preview", json={"base_revision": 0, "moves": []}, headers=users["client"])
@@ -258,6 +269,21 @@ class TestSubmit:
         r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 1, "moves": [m2]}, headers=users["admin"])
         assert r.status_code == 422 and r.json()["refusals"][0]["reason"] == "locked"
         assert fc["head_revision"] == 1
+
+    def test_dragging_past_an_unmoved_neighbour_reverses_the_order(self, client, users, app):
+        rid = new_run(client, users)
+        set_rules(app, rid, order_rule="refuse")
+        _, xy = kf_coords(client, users["admin"], rid)
+        past = xy[21] + 0.5 * (xy[21] - xy[20])  # half a step beyond keyframe 21, which stays put
+        body = {"base_revision": 0, "moves": [{"index": 20, "lon": past[0], "lat": past[1]}]}
+        r = client.post(f"/api/v1/runs/{rid}/edits", json=body, headers=users["admin"])
+        assert r.status_code == 422, r.text
+        assert [(x["index"], x["reason"]) for x in r.json()["refusals"]] == [(20, "order_reversed")]
+        pv = client.post(f"/api/v1/runs/{rid}/preview", json=body, headers=users["admin"]).json()
+        assert [(x["index"], x["reason"]) for x in pv["refusals"]] == [(20, "order_reversed")]
+        set_rules(app, rid, order_rule="flag")
+        r = client.post(f"/api/v1/runs/{rid}/edits", json=body, headers=users["admin"])
+        assert r.status_code == 202 and [f["reason"] for f in r.json()["flags"]] == ["order_reversed"], r.text
 
     def test_empty_batch(self, client, users):
         rid = new_run(client, users)

@@ -17,11 +17,15 @@ Rules, applied in this order to the moves sorted by keyframe index:
                       on either side of (``both``) an earlier-edited keyframe or an accepted
                       move of this batch with a lower index (moves are taken in index order);
 6. ``too_far``        the move is longer than ``max_move_m`` (always finite, see below);
-7. ``order_reversed`` between two consecutive moved keyframes i < j (earlier edits
-                      included) the corrected chord c_j - c_i points backwards along the
-                      reported chord p_j - p_i (dot product <= 0; chords shorter than 1 m are
-                      not judged).  ``order_rule`` "refuse" refuses the later move, "flag"
-                      accepts it with a flag.
+7. ``order_reversed`` between two consecutive surviving keyframes i < j, each where it
+                      now lies (moved in this batch or an earlier edit, else where it was
+                      reported), the chord c_j - c_i points backwards along the reported
+                      chord p_j - p_i (dot product <= 0; chords shorter than 1 m are not
+                      judged).  So a pose dragged past an unmoved neighbour reverses the
+                      order as surely as one dragged past a moved one.  Only pairs with a
+                      move of this batch are judged; its move is the culprit (the later one
+                      when both are).  ``order_rule`` "refuse" refuses it, "flag" accepts it
+                      with a flag.
 
 Rules 1-6 always refuse.  A refused move is left out before rule 7 is judged.
 
@@ -189,33 +193,42 @@ def check_edits(
             continue
         accepted.append(move)
         locked.update(j for j in lock_span(i, k, rules) if j != i)
-    # rule 7 on the accepted moves together with earlier edits
-    positions = {i: xy for i, xy in edited_before.items() if i not in deleted_set}
-    positions.update({m.index: (m.east_m, m.north_m) for m in accepted})
-    batch = {m.index for m in accepted}
-    order = sorted(positions)
-    reversed_indices = set()
-    for a, b in zip(order[:-1], order[1:]):
-        chord = reported[b] - reported[a]
-        if np.hypot(*chord) < MIN_CHORD_M:
-            continue
-        moved = np.subtract(positions[b], positions[a])
-        if float(np.dot(moved, chord)) <= 0.0:
-            culprit = b if b in batch else a
-            if culprit not in batch or culprit in reversed_indices:
-                continue
-            reversed_indices.add(culprit)
-            other = a if culprit == b else b
-            item = Refusal(
-                culprit,
-                "order_reversed",
-                f"Moving keyframe {culprit} puts it on the wrong side of edited keyframe {other}: "
-                "the poses would run backwards along the track.",
-            )
-            (refusals if rules.order_rule == "refuse" else flags).append(item)
+    reversed_indices = _order_reversals(rules, reported, accepted, deleted_set, edited_before, refusals, flags)
     if rules.order_rule == "refuse":
         accepted = [m for m in accepted if m.index not in reversed_indices]
     return RuleCheck(accepted=accepted, refusals=refusals, flags=flags)
+
+
+def _order_reversals(rules, reported, accepted, deleted_set, edited_before, refusals, flags) -> set[int]:
+    """Rule 7 over every surviving keyframe in track order; appends to ``refusals`` or
+    ``flags`` and returns the culprits."""
+    k = len(reported)
+    now = reported.copy()
+    for i, xy in edited_before.items():
+        if 0 <= i < k:
+            now[i] = xy
+    batch = {m.index for m in accepted}
+    for m in accepted:
+        now[m.index] = (m.east_m, m.north_m)
+    alive = np.setdiff1d(np.arange(k), np.fromiter(deleted_set, dtype=np.int64, count=len(deleted_set)))
+    a, b = alive[:-1], alive[1:]
+    chord = reported[b] - reported[a]
+    backwards = (np.hypot(chord[:, 0], chord[:, 1]) >= MIN_CHORD_M) & (np.sum((now[b] - now[a]) * chord, axis=1) <= 0.0)
+    culprits: set[int] = set()
+    for ia, ib in zip(a[backwards].tolist(), b[backwards].tolist()):
+        culprit = ib if ib in batch else ia
+        if culprit not in batch or culprit in culprits:
+            continue
+        culprits.add(culprit)
+        other = ia if culprit == ib else ib
+        item = Refusal(
+            culprit,
+            "order_reversed",
+            f"Moving keyframe {culprit} puts it on the wrong side of keyframe {other}: "
+            "the poses would run backwards along the track.",
+        )
+        (refusals if rules.order_rule == "refuse" else flags).append(item)
+    return culprits
 
 
 def _first_refusal(rules, reported, move, k, seen, deleted_set, adjustable, locked) -> Refusal | None:

@@ -39,12 +39,15 @@ def _rev_public(rev: Revision, detail: bool = False, notes: dict[str, Any] | Non
     return RevisionDetail(**data, edit_set=rev.edit_set) if detail else RevisionPublic(**data)
 
 
-@router.post("/runs/{run_id}/preview", response_model=PreviewResponse, responses=responses(401, 403, 404, 415, 422))
+@router.post("/runs/{run_id}/preview", response_model=PreviewResponse, responses=responses(401, 403, 404, 409, 415, 422))
 async def preview(
     run_id: int, body: PreviewRequest, request: Request, principal: EditorReader, session: ReadSessionDep,
     settings: SettingsDep,
 ) -> Response:
-    """Re-optimise keyframes with proposed, uncommitted edits (refused moves are left out and listed)."""
+    """Re-optimise keyframes with proposed, uncommitted edits (refused moves are left out and listed).
+
+    409 ``stale_revision`` (with ``current_revision``) when ``base_revision`` is not the run's
+    latest, as ``/edits`` answers for the same batch."""
     # A preview writes nothing: its session is a reading one (on SQLite a POST's session
     # would hold the database's one write lock, queueing previews and every writer behind
     # each other), and it holds no connection while it waits for a solver lane.

@@ -71,8 +71,12 @@ def _moves(moves: list[MoveIn]) -> list[Edit]:
 
 def preview(session: Session, settings: Settings, run: Run, base_revision: int, moves: list[MoveIn], deleted: list[int]) -> dict[str, Any]:
     """The preview of a batch on ``base_revision``; ``positions`` is a (k, 2) lon/lat array
-    (the endpoint serialises it without making 7,000 Python floats)."""
+    (the endpoint serialises it without making 7,000 Python floats).  A base that is not the
+    run's head answers 409 ``stale_revision``, as submitting the same batch would: a preview
+    of edits that cannot be saved would only hide the conflict until Submit."""
     started = time.perf_counter()
+    if base_revision != run.head_revision:
+        raise _stale(session, run, base_revision)
     base, keyframes_file = revision_base(session, settings, run, base_revision)
     problem = load_problem(session, settings, run)
     k = len(problem.keyframe_index)

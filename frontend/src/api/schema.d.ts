@@ -771,6 +771,9 @@ export interface paths {
         /**
          * Preview
          * @description Re-optimise keyframes with proposed, uncommitted edits (refused moves are left out and listed).
+         *
+         *     409 ``stale_revision`` (with ``current_revision``) when ``base_revision`` is not the run's
+         *     latest, as ``/edits`` answers for the same batch.
          */
         post: operations["preview_api_v1_runs__run_id__preview_post"];
         delete?: never;
@@ -5748,6 +5751,15 @@ export interface operations {
             };
             /** @description Not found */
             404: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
+                };
+            };
+            /** @description Conflict */
+            409: {
                 headers: {
                     [name: string]: unknown;
                 };

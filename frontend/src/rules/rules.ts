@@ -15,10 +15,13 @@
  *                   an earlier-edited keyframe or an accepted move of this batch with a
  *                   lower index;
  * 6. too_far        the move is longer than `max_move_m` (always finite: see core/rules.py);
- * 7. order_reversed between two consecutive moved keyframes i < j (earlier edits included)
- *                   the corrected chord c_j - c_i points backwards along the reported chord
- *                   (dot <= 0; chords shorter than 1 m are not judged). "refuse" refuses the
- *                   later move, "flag" accepts it with a flag.
+ * 7. order_reversed between two consecutive surviving keyframes i < j, each where it now
+ *                   lies (moved in this batch or an earlier edit, else where it was reported),
+ *                   the chord c_j - c_i points backwards along the reported chord (dot <= 0;
+ *                   chords shorter than 1 m are not judged): a pose dragged past an unmoved
+ *                   neighbour reverses the order too. Only pairs with a move of this batch
+ *                   are judged; its move is the culprit (the later one when both are).
+ *                   "refuse" refuses it, "flag" accepts it with a flag.
  * Rules 1-6 always refuse. A refused move is left out before rule 7 is judged.
  */
 import type { EditRules, Refusal } from "../state/types";
@@ -118,38 +121,50 @@ export function checkEdits(
     accepted.push(move);
     for (const j of lockSpan(i, k, rules)) if (j !== i) locked.add(j);
   }
-  // rule 7 on the accepted moves together with earlier edits
-  const positions = new Map<number, EnM>();
-  for (const [i, xy] of editedBefore) if (!deletedSet.has(i)) positions.set(i, xy);
-  for (const m of accepted) positions.set(m.index, [m.east_m, m.north_m]);
-  const batch = new Set(accepted.map((m) => m.index));
-  const order = [...positions.keys()].sort((a, b) => a - b);
-  const reversed = new Set<number>();
-  for (let n = 0; n + 1 < order.length; n++) {
-    const a = order[n];
-    const b = order[n + 1];
-    const chord = [reportedEnM[b][0] - reportedEnM[a][0], reportedEnM[b][1] - reportedEnM[a][1]];
-    if (Math.hypot(chord[0], chord[1]) < MIN_CHORD_M) continue;
-    const pa = positions.get(a)!;
-    const pb = positions.get(b)!;
-    const moved = [pb[0] - pa[0], pb[1] - pa[1]];
-    if (moved[0] * chord[0] + moved[1] * chord[1] <= 0) {
-      const culprit = batch.has(b) ? b : a;
-      if (!batch.has(culprit) || reversed.has(culprit)) continue;
-      reversed.add(culprit);
-      const other = culprit === b ? a : b;
-      const item: Refusal = {
-        index: culprit,
-        reason: "order_reversed",
-        message:
-          `Moving keyframe ${culprit} puts it on the wrong side of edited keyframe ${other}: ` +
-          "the poses would run backwards along the track.",
-      };
-      (rules.order_rule === "refuse" ? refusals : flags).push(item);
-    }
-  }
+  const reversed = orderReversals(rules, reportedEnM, accepted, deletedSet, editedBefore, refusals, flags);
   if (rules.order_rule === "refuse") accepted = accepted.filter((m) => !reversed.has(m.index));
   return { accepted, refusals, flags };
+}
+
+/** Rule 7 over every surviving keyframe in track order; pushes to `refusals` or `flags`, returns the culprits. */
+function orderReversals(
+  rules: EditRules,
+  reported: readonly EnM[],
+  accepted: readonly KeyframeMove[],
+  deletedSet: Set<number>,
+  editedBefore: ReadonlyMap<number, EnM>,
+  refusals: Refusal[],
+  flags: Refusal[],
+): Set<number> {
+  const k = reported.length;
+  const now: EnM[] = reported.slice();
+  for (const [i, xy] of editedBefore) if (i >= 0 && i < k) now[i] = xy;
+  const batch = new Set(accepted.map((m) => m.index));
+  for (const m of accepted) now[m.index] = [m.east_m, m.north_m];
+  const culprits = new Set<number>();
+  let a = -1;
+  for (let b = 0; b < k; b++) {
+    if (deletedSet.has(b)) continue;
+    if (a >= 0 && (batch.has(a) || batch.has(b))) {
+      const chord = [reported[b][0] - reported[a][0], reported[b][1] - reported[a][1]];
+      const moved = [now[b][0] - now[a][0], now[b][1] - now[a][1]];
+      if (Math.hypot(chord[0], chord[1]) >= MIN_CHORD_M && moved[0] * chord[0] + moved[1] * chord[1] <= 0) {
+        const culprit = batch.has(b) ? b : a;
+        if (!culprits.has(culprit)) {
+          culprits.add(culprit);
+          const other = culprit === b ? a : b;
+          const item: Refusal = {
+            index: culprit,
+            reason: "order_reversed",
+            message: `Moving keyframe ${culprit} puts it on the wrong side of keyframe ${other}: the poses would run backwards along the track.`,
+          };
+          (rules.order_rule === "refuse" ? refusals : flags).push(item);
+        }
+      }
+    }
+    a = b;
+  }
+  return culprits;
 }
 
 function firstRefusal(
