@@ -1,5 +1,6 @@
 import { describe, expect, it } from "vitest";
-import { loadDoc, perform, redo, selectNextAdjustable, selectStep, setPreview, stageDrag, undo } from "../src/actions/editor";
+import { loadDoc, nudgeSelected, perform, redo, select, selectNextAdjustable, selectStep, setPreview, stageDrag, undo } from "../src/actions/editor";
+import { offsetEnM } from "../src/rules/geodesy";
 import { actionAcceptAsIs, actionMarkDeleted, actionMoveKeyframe, actionReset, actionRestore, actionUnmove } from "../src/actions/edits";
 import { editsBody, editsFromBody, docFromKeyframes, driftFrom } from "../src/api/convert";
 import { currentEdits, displayPositions, editCount, editorNew, keyframeStatuses, previewIsCurrent } from "../src/state/editor";
@@ -75,6 +76,30 @@ describe("edit actions", () => {
     s = perform(s, actionReset());
     expect(editCount(currentEdits(s))).toBe(0);
     expect(editCount(currentEdits(undo(s)))).toBe(1);
+  });
+});
+
+describe("keyboard nudges", () => {
+  const offset = (s: ReturnType<typeof loaded>, i: number) => offsetEnM(doc.keyframes[i].lonlat, currentEdits(s).moves.get(i)!);
+  it("move the selected keyframe by metres, one undo step for consecutive nudges of it", () => {
+    let s = select(loaded(), 4);
+    s = nudgeSelected(s, 0.5, 0);
+    s = nudgeSelected(s, 0.5, 0);
+    s = nudgeSelected(s, 0, 5);
+    const [e, n] = offset(s, 4);
+    expect(e).toBeCloseTo(1.0, 3);
+    expect(n).toBeCloseTo(5.0, 3);
+    expect(s.history.steps.map((x) => x.label)).toEqual(["Start", "Nudge keyframe 4"]);
+    expect(editCount(currentEdits(undo(s)))).toBe(0);
+    s = select(nudgeSelected(select(s, 0), 0, 0.5), 4);
+    s = nudgeSelected(s, 0.5, 0);
+    expect(s.history.steps.map((x) => x.label)).toEqual(["Start", "Nudge keyframe 4", "Nudge keyframe 0", "Nudge keyframe 4"]);
+  });
+  it("are refused by the rules as a drag is, where the keyframe would go", () => {
+    const s = nudgeSelected(select(loaded(), 3), 0.5, 0);
+    expect(s.refusal?.reason).toBe("not_adjustable");
+    expect(offsetEnM(doc.keyframes[3].lonlat, s.refusal!.at)[0]).toBeCloseTo(0.5, 3);
+    expect(nudgeSelected(loaded(), 0.5, 0)).toEqual(loaded());
   });
 });
 

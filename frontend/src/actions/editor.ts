@@ -6,26 +6,42 @@ import {
   type EditorState,
   type ModeName,
   currentEdits,
+  displayPositions,
   editorNew,
 } from "../state/editor";
 import {
   historyNew,
   historyPerform,
+  historyPerformMerged,
   historyRedo,
   historyUndo,
 } from "../state/history";
+import { offsetLonLat } from "../rules/geodesy";
 import type { Drift, Edits, LonLat, Refusal, RunDoc } from "../state/types";
-import type { EditAction } from "./edits";
+import { type EditAction, actionNudgeKeyframe } from "./edits";
 
 /** Apply `action`: a new history step, or the refusal placed at `at` (edits unchanged). */
-export function perform(s: EditorState, action: EditAction, at?: LonLat): EditorState {
+export function perform(s: EditorState, action: EditAction, at?: LonLat, merge = false): EditorState {
   if (!s.doc) return s;
   const r = action.apply(s.doc, currentEdits(s));
   if (!r.ok) {
     const where = at ?? s.doc.keyframes[r.refusal.index]?.lonlat ?? [0, 0];
     return { ...s, staging: null, refusal: { ...r.refusal, at: where } };
   }
-  return { ...s, staging: null, refusal: null, history: historyPerform(s.history, action.label, r.edits) };
+  const history = (merge ? historyPerformMerged : historyPerform)(s.history, action.label, r.edits);
+  return { ...s, staging: null, refusal: null, history };
+}
+
+/**
+ * Nudge the selected keyframe by `eastM`/`northM` metres from where it is drawn: a move by
+ * the same rules as a drag (a refusal is shown at the nudged position), and consecutive
+ * nudges of one keyframe are one undo step.
+ */
+export function nudgeSelected(s: EditorState, eastM: number, northM: number): EditorState {
+  const i = s.selected;
+  if (i === null || !s.doc) return s;
+  const to = offsetLonLat(currentEdits(s).moves.get(i) ?? displayPositions(s)[i], eastM, northM);
+  return perform(s, actionNudgeKeyframe(i, to), to, true);
 }
 
 export function undo(s: EditorState): EditorState {

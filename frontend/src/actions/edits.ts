@@ -36,6 +36,11 @@ export function actionMoveKeyframe(index: number, lonlat: LonLat): EditAction {
   };
 }
 
+/** A keyboard nudge of keyframe `index` to `lonlat`: a move, labelled so that consecutive nudges of one keyframe merge. */
+export function actionNudgeKeyframe(index: number, lonlat: LonLat): EditAction {
+  return { ...actionMoveKeyframe(index, lonlat), label: `Nudge keyframe ${index}` };
+}
+
 /** Mark keyframes `from..to` (inclusive, either order) for deletion; drops their moves. */
 export function actionMarkDeleted(from: number, to: number = from): EditAction {
   const lo = Math.min(from, to);

@@ -22,6 +22,15 @@ export function offsetEnM(from: LonLat, to: LonLat): [number, number] {
   return [(to[0] - from[0]) * DEG * nM * Math.cos(latMeanRad), (to[1] - from[1]) * DEG * mM];
 }
 
+/** The position `east_m`/`north_m` metres from `from` (the inverse of `offsetEnM` for small offsets). */
+export function offsetLonLat(from: LonLat, eastM: number, northM: number): [number, number] {
+  const s = Math.sin(from[1] * DEG);
+  const w = Math.sqrt(1 - E2 * s * s);
+  const nM = A_M / w;
+  const mM = (A_M * (1 - E2)) / (w * w * w);
+  return [from[0] + eastM / (nM * Math.cos(from[1] * DEG)) / DEG, from[1] + northM / mM / DEG];
+}
+
 /** Horizontal distance (m) between two [lon, lat] positions. */
 export function distanceM(a: LonLat, b: LonLat): number {
   const [e, n] = offsetEnM(a, b);

@@ -28,6 +28,15 @@ export function historyPerform(h: History, label: string, edits: Edits): History
   return { steps: [...h.steps.slice(0, h.at + 1), { label, edits }], at: h.at + 1 };
 }
 
+/**
+ * As `historyPerform`, but a step with the same label right after the last one replaces it:
+ * the arrow-key nudges of one keyframe are one undo step, as a drag is.
+ */
+export function historyPerformMerged(h: History, label: string, edits: Edits): History {
+  const last = h.at === h.steps.length - 1 && h.at > 0 && h.steps[h.at].label === label;
+  return last ? { steps: [...h.steps.slice(0, h.at), { label, edits }], at: h.at } : historyPerform(h, label, edits);
+}
+
 export function canUndo(h: History): boolean {
   return h.at > 0;
 }

@@ -4,10 +4,10 @@
  * input -> modes/controller -> store -> adapter/panels.
  */
 import type { Map as MlMap } from "maplibre-gl";
-import { dismissRefusal, select, selectNextAdjustable, selectStep, toggleGhost } from "../../actions/editor";
+import { dismissRefusal, nudgeSelected, select, selectNextAdjustable, selectStep, toggleGhost } from "../../actions/editor";
 import { actionAcceptAsIs, actionMarkDeleted, actionReset, actionRestore, actionUnmove } from "../../actions/edits";
 import { api } from "../../api/endpoints";
-import { type EditorCommand, installEditorKeys } from "../../behaviors/keyboard";
+import { type EditorCommand, installEditorKeys, nudgeVector } from "../../behaviors/keyboard";
 import { MapAdapter } from "../../map/adapter";
 import { createMap } from "../../map/createMap";
 import { bounds } from "../../map/features";
@@ -30,7 +30,8 @@ import { EditorToolbar, type SubmitOptions } from "./toolbar";
 
 function keysHelp(): HTMLElement {
   return h("ul", { class: "keys" },
-    h("li", {}, h("kbd", {}, "."), " / ", h("kbd", {}, ","), " or ", h("kbd", {}, "→"), " / ", h("kbd", {}, "←"), " next / previous keyframe"),
+    h("li", {}, h("kbd", {}, "."), " / ", h("kbd", {}, ","), " next / previous keyframe"),
+    h("li", {}, h("kbd", {}, "←"), h("kbd", {}, "↑"), h("kbd", {}, "→"), h("kbd", {}, "↓"), " nudge the selected keyframe 0.5 m (", h("kbd", {}, "Shift"), " 5 m)"),
     h("li", {}, h("kbd", {}, "A"), " next adjustable keyframe"),
     h("li", {}, h("kbd", {}, "Ctrl+Z"), " undo, ", h("kbd", {}, "Ctrl+Shift+Z"), " redo"),
     h("li", {}, h("kbd", {}, "Del"), " delete / restore, ", h("kbd", {}, "R"), " delete a range"),
@@ -135,6 +136,12 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
   }
   function runCommand(c: EditorCommand) {
     const before = store.get();
+    const nudge = nudgeVector(c);
+    if (nudge) {
+      store.update((x) => nudgeSelected(x, nudge[0], nudge[1]));
+      if (before.selected !== null) panTo(before.selected);
+      return;
+    }
     switch (c) {
       case "undo": ctl.undo(); break;
       case "redo": ctl.redo(); break;
