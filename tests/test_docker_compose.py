@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from typer.testing import CliRunner
+from click.testing import CliRunner
 
 REPO = Path(__file__).resolve().parents[1]
 ENV = {"POSTGRES_PASSWORD": "pg-secret-for-test", "POSEFIX_SECRET_KEY": "s" * 48}

@@ -186,7 +186,7 @@ class TestCsrfOrigin:
     def test_production_without_an_origin_refuses_sessions_and_serve_will_not_start(
         self, settings: Any, monkeypatch: pytest.MonkeyPatch, tmp_path: Any,
     ) -> None:
-        from typer.testing import CliRunner
+        from click.testing import CliRunner
 
         from posefix.cli import build_app
         from posefix.main import create_app

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from typer.testing import CliRunner
+from click.testing import CliRunner
 
 from tests.api.tasks_support import Env, env, task_body  # noqa: F401
 

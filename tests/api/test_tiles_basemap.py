@@ -136,7 +136,7 @@ class TestStyleLayers:
 
 class TestBasemapCommand:
     def test_posefix_basemap_build(self, tmp_path: Path) -> None:
-        from typer.testing import CliRunner
+        from click.testing import CliRunner
 
         from posefix.cli import build_app
 

@@ -182,7 +182,7 @@ def test_bad_edits_and_unmatched_times(simulated, tmp_path):
     (["evaluate", "RUN", "nothing.csv"], ["no such file"]),
 ])
 def test_usage_errors_are_one_line(simulated, tmp_path, args, fragments):
-    # in-process (typer's runner) to keep the suite quick; the subprocess tests above
+    # in-process (click's runner) to keep the suite quick; the subprocess tests above
     # cover the real entry point
     (tmp_path / "x.tum").write_text("0 0 0 0 0 0 0 1\n")
     run = str(simulated / "run.csv")
@@ -192,7 +192,7 @@ def test_usage_errors_are_one_line(simulated, tmp_path, args, fragments):
 
 
 def in_process(*args):
-    from typer.testing import CliRunner
+    from click.testing import CliRunner
 
     from posefix.cli import build_app
 

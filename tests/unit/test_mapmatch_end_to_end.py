@@ -4,7 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
+from click.testing import CliRunner
 
 from posefix.mapmatch import build_model, load_model, read_walk, save_model, track_walk
 from posefix.mapmatch.evaluate import evaluate_track

@@ -89,7 +89,7 @@ def test_refused_only_when_nothing_usable_is_left(tmp_path):
 
 
 def test_cli_build_reports_the_outline_for_the_second_site(tmp_path):
-    from typer.testing import CliRunner
+    from click.testing import CliRunner
 
     from posefix.cli import build_app
 

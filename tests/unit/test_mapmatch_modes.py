@@ -98,7 +98,7 @@ def test_step_correction_recovers_a_walks_heading_and_scale_from_its_converged_s
 def test_cli_track_says_whether_it_converged(tmp_path):
     from pathlib import Path
 
-    from typer.testing import CliRunner
+    from click.testing import CliRunner
 
     from posefix.cli import build_app
 

@@ -8,9 +8,11 @@ import warnings
 from contextlib import contextmanager
 from typing import Iterator
 
-import typer
+import click
 
 EXIT_BAD_INPUT = 1
+# Every command shows its options' defaults in --help.
+CONTEXT = {"show_default": True}
 
 
 def single_threaded_blas() -> None:
@@ -30,8 +32,8 @@ class CommandError(Exception):
 
 def fail(message: str) -> None:
     one_line = " ".join(str(message).split())  # messages from libraries may span lines
-    typer.echo(f"error: {one_line}", err=True)
-    raise typer.Exit(EXIT_BAD_INPUT)
+    click.echo(f"error: {one_line}", err=True)
+    raise click.exceptions.Exit(EXIT_BAD_INPUT)
 
 
 @contextmanager
@@ -43,13 +45,13 @@ def user_errors() -> Iterator[None]:
     from posefix.io.errors import RunFormatError
 
     def show_warning(message, category, filename, lineno, file=None, line=None):
-        typer.echo(f"warning: {message}", err=True)
+        click.echo(f"warning: {message}", err=True)
 
     old = warnings.showwarning
     warnings.showwarning = show_warning
     try:
         yield
-    except typer.Exit:
+    except click.exceptions.Exit:
         raise
     except (RunFormatError, CommandError) as exc:
         fail(str(exc))

@@ -15,11 +15,12 @@ import time
 from pathlib import Path
 from typing import Optional
 
-import typer
+import click
 
-from posefix.commands.common import CommandError, single_threaded_blas, user_errors
+from posefix.commands.common import CONTEXT, CommandError, single_threaded_blas, user_errors
 
-app = typer.Typer()
+app = click.Group()
+PATH = click.Path(path_type=Path)
 
 
 FORMAT_HELP = "csv, parquet, arrow, gpx, geojson, tum, kitti or comma2k19"
@@ -108,20 +109,34 @@ def _check_output_path(path: Path, inputs: list[Path]) -> None:
 # --------------------------------------------------------------------------- correct
 
 
-@app.command("correct")
+@app.command("correct", context_settings=CONTEXT)
+@click.argument("run_path", metavar="RUN", type=PATH)
+@click.option("--edits", "-e", "edits_path", type=PATH, metavar="EDITS.json", help='Operator edits: {"edits": [{"t": s, "lat": deg, "lon": deg, "alt": m (optional)}], "deleted": [t, ...]}; each t names a sample to the millisecond. Omit for no edits.')
+@click.option("--output", "-o", "output", type=PATH, metavar="OUT", required=True, help="Corrected run: every input sample in input order, other columns kept. Format from the extension (.csv, .parquet, .arrow, .gpx, .geojson, .tum) unless --format.")
+@click.option("--config", "-c", "config", type=PATH, metavar="FILE", help="TOML file overriding engine settings (strengths in metres/radians, loss, drift, solver); defaults documented in posefix/core/default_config.toml.")
+@click.option("--keyframes-every-s", type=float, metavar="S", help="One keyframe every S seconds (default from config: 1 s). Edited samples are always keyframes.")
+@click.option("--keyframes-every-m", type=float, metavar="M", help="One keyframe every M metres travelled (instead of every S seconds).")
+@click.option("--format", "-f", "fmt", help="Output format: csv, parquet, arrow, gpx, geojson or tum (default: from OUT's extension).")
+@click.option("--input-format", help=f"Input format ({FORMAT_HELP}); default from RUN's extension or folder layout.")
+@click.option("--origin", help=ORIGIN_HELP)
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
 def correct_command(
-    run_path: Path = typer.Argument(..., metavar="RUN", help=f"Pose run to correct: a file or folder ({FORMAT_HELP}); format from the extension/layout unless --input-format."),
-    edits_path: Optional[Path] = typer.Option(None, "--edits", "-e", metavar="EDITS.json", help='Operator edits: {"edits": [{"t": s, "lat": deg, "lon": deg, "alt": m (optional)}], "deleted": [t, ...]}; each t names a sample to the millisecond. Omit for no edits.'),
-    output: Path = typer.Option(..., "--output", "-o", metavar="OUT", help="Corrected run: every input sample in input order, other columns kept. Format from the extension (.csv, .parquet, .arrow, .gpx, .geojson, .tum) unless --format."),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", metavar="FILE", help="TOML file overriding engine settings (strengths in metres/radians, loss, drift, solver); defaults documented in posefix/core/default_config.toml."),
-    keyframes_every_s: Optional[float] = typer.Option(None, "--keyframes-every-s", metavar="S", help="One keyframe every S seconds (default from config: 1 s). Edited samples are always keyframes."),
-    keyframes_every_m: Optional[float] = typer.Option(None, "--keyframes-every-m", metavar="M", help="One keyframe every M metres travelled (instead of every S seconds)."),
-    fmt: Optional[str] = typer.Option(None, "--format", "-f", help="Output format: csv, parquet, arrow, gpx, geojson or tum (default: from OUT's extension)."),
-    input_format: Optional[str] = typer.Option(None, "--input-format", help=f"Input format ({FORMAT_HELP}); default from RUN's extension or folder layout."),
-    origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
+    run_path: Path,
+    edits_path: Optional[Path],
+    output: Path,
+    config: Optional[Path],
+    keyframes_every_s: Optional[float],
+    keyframes_every_m: Optional[float],
+    fmt: Optional[str],
+    input_format: Optional[str],
+    origin: Optional[str],
+    quiet: bool,
 ) -> None:
-    """Correct a pose run from operator edits: optimise keyframes, propagate to every sample."""
+    """Correct a pose run from operator edits: optimise keyframes, propagate to every sample.
+
+    RUN is the pose run to correct: a file or folder (csv, parquet, arrow, gpx, geojson, tum,
+    kitti or comma2k19); its format comes from the extension/layout unless --input-format.
+    """
     single_threaded_blas()
     with user_errors():
         t_start = time.perf_counter()
@@ -181,11 +196,11 @@ def _print_correction_summary(run, edits, result, output: Path, elapsed_s: float
     status = getattr(s, "status", "?")
     message = getattr(s, "message", "")
     iters = getattr(s, "iterations", "?")
-    typer.echo(
+    click.echo(
         f"corrected {run.n} samples ({k} keyframes, {len(edits.moves)} moves, {len(edits.deleted)} deleted) "
         f"-> {output} in {elapsed_s:.2f} s"
     )
-    typer.echo(f"solver: {status} after {iters} iterations: {message}")
+    click.echo(f"solver: {status} after {iters} iterations: {message}")
     drift = result.drift
     off = getattr(drift, "offset_enu_m", None)
     spread = getattr(drift, "spread_m", None)
@@ -195,15 +210,15 @@ def _print_correction_summary(run, edits, result, output: Path, elapsed_s: float
         off = np.asarray(off, dtype=float).reshape(-1)
         if off.size >= 2 and np.all(np.isfinite(off[:2])):
             sp = f", spread {float(spread):.2f} m" if spread is not None and np.isfinite(spread) else ""
-            typer.echo(f"drift implied by the edits: east {off[0]:+.2f} m, north {off[1]:+.2f} m{sp}")
+            click.echo(f"drift implied by the edits: east {off[0]:+.2f} m, north {off[1]:+.2f} m{sp}")
     calib = getattr(drift, "calibration", None)
     if calib is not None:
-        typer.echo(_calibration_line(calib))
+        click.echo(_calibration_line(calib))
     if getattr(drift, "loc_sigma_h_m", None) is not None:
-        typer.echo("the raw GNSS jumps onto urban-canyon levels the pose bridged: levels taken out of the "
+        click.echo("the raw GNSS jumps onto urban-canyon levels the pose bridged: levels taken out of the "
                    "location term (drift.gnss_levels)")
     for flag in getattr(result, "flags", []) or []:
-        typer.echo(f"flagged: keyframe {flag.index}: {flag.reason}: {flag.message}")
+        click.echo(f"flagged: keyframe {flag.index}: {flag.reason}: {flag.message}")
 
 
 def _calibration_line(calib) -> str:
@@ -221,14 +236,17 @@ def _calibration_line(calib) -> str:
 # --------------------------------------------------------------------------- evaluate
 
 
-@app.command("evaluate")
-def evaluate_command(
-    truth_path: Path = typer.Argument(..., metavar="TRUTH", help=f"Ground-truth run ({FORMAT_HELP})."),
-    run_path: Path = typer.Argument(..., metavar="RUN", help="Run to measure; its samples are compared with TRUTH interpolated at RUN's times."),
-    as_json: bool = typer.Option(False, "--json", help="Print the metrics as JSON (metres) instead of a table."),
-    origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
-) -> None:
-    """Horizontal and 3-D position error of RUN against TRUTH: RMSE, mean, median, 95th percentile, max (metres)."""
+@app.command("evaluate", context_settings=CONTEXT)
+@click.argument("truth_path", metavar="TRUTH", type=PATH)
+@click.argument("run_path", metavar="RUN", type=PATH)
+@click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON (metres) instead of a table.")
+@click.option("--origin", help=ORIGIN_HELP)
+def evaluate_command(truth_path: Path, run_path: Path, as_json: bool, origin: Optional[str]) -> None:
+    """Horizontal and 3-D position error of RUN against TRUTH: RMSE, mean, median, 95th percentile, max (metres).
+
+    TRUTH is the ground-truth run (csv, parquet, arrow, gpx, geojson, tum, kitti or comma2k19);
+    RUN's samples are compared with TRUTH interpolated at RUN's times.
+    """
     with user_errors():
         o = _parse_origin(origin)
         from posefix.core.evaluate import evaluate
@@ -238,32 +256,44 @@ def evaluate_command(
         run = read_run(run_path, origin=o)
         ev = evaluate(truth, run)
         if as_json:
-            typer.echo(json.dumps(ev.to_dict(), indent=2))
+            click.echo(json.dumps(ev.to_dict(), indent=2))
             return
-        typer.echo(f"{'error (m)':<12}{'rmse':>10}{'mean':>10}{'median':>10}{'p95':>10}{'max':>10}")
+        click.echo(f"{'error (m)':<12}{'rmse':>10}{'mean':>10}{'median':>10}{'p95':>10}{'max':>10}")
         for name, st in (("horizontal", ev.horizontal), ("3-D", ev.three_d)):
-            typer.echo(f"{name:<12}{st.rmse_m:>10.3f}{st.mean_m:>10.3f}{st.median_m:>10.3f}{st.p95_m:>10.3f}{st.max_m:>10.3f}")
+            click.echo(f"{name:<12}{st.rmse_m:>10.3f}{st.mean_m:>10.3f}{st.median_m:>10.3f}{st.p95_m:>10.3f}{st.max_m:>10.3f}")
         extra = f"; {ev.n_outside} outside the truth's time span, not measured" if ev.n_outside else ""
-        typer.echo(f"samples compared: {ev.n_compared}{extra}")
+        click.echo(f"samples compared: {ev.n_compared}{extra}")
 
 
 # --------------------------------------------------------------------------- simulate
 
 
-@app.command("simulate")
+@app.command("simulate", context_settings=CONTEXT)
+@click.option("--out", type=PATH, metavar="DIR", required=True, help="Folder to write run.csv (reported poses + raw GNSS), truth.csv and edits.json into (created if missing).")
+@click.option("--duration-s", type=click.FloatRange(min=1.0), default=600.0, help="Length of the drive, seconds.")
+@click.option("--rate-hz", type=click.FloatRange(min=0.1), default=100.0, help="Pose sample rate, Hz.")
+@click.option("--edit-every-s", type=click.FloatRange(min=0.0), default=100.0, help="One edit (true position + click noise) every this many seconds, at the middle of each interval; 0 for none.")
+@click.option("--seed", type=int, default=1, help="Random seed: the same options give the same drive.")
+@click.option("--regime", default="mixed", help="GNSS error regime: white (noise), drift (pose bias moving a few cm/s, raw GNSS beside), canyon (offset jumps of 5-20 m for minutes, inherited by the pose), canyon_ins (the same jumps in the raw GNSS only; the pose bridged them), outliers (50 m bursts), mixed (canyon + outliers + drift).")
+@click.option("--family", help="Build the reported pose the way a real unit does instead of a regime's error (posefix.core.families): ekf (odometry and yaw rate fused with gated single-point GNSS), ekf_smoothed (the same forward-backward), ins_lowpass (a GNSS/INS pose following a low-passed copy of the fix's bias), scale_heading (dead reckoning with a scale error and a heading bias), time_offset (pose stamped late against GNSS), outage (ekf with three minutes without fixes), no_gnss (ekf, no gnss columns). GNSS at --gnss-rate-hz (1 Hz unless given).")
+@click.option("--osm", type=PATH, metavar="FILE.pbf", help="Drive along the streets of this OpenStreetMap extract (e.g. ../shared/data/osm/helsinki.osm.pbf).")
+@click.option("--click-noise-m", type=click.FloatRange(min=0.0), default=0.5, help="Operator click error of each edit, metres (1 sigma per horizontal axis).")
+@click.option("--gnss-rate-hz", type=click.FloatRange(min=0.01), help="Raw GNSS fix rate, Hz (held between fixes); default 10, with --family 1.")
+@click.option("--no-gnss-columns", is_flag=True, help="Leave the raw GNSS columns out of run.csv (the location term then uses the reported pose).")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
 def simulate_command(
-    out: Path = typer.Option(..., "--out", metavar="DIR", help="Folder to write run.csv (reported poses + raw GNSS), truth.csv and edits.json into (created if missing)."),
-    duration_s: float = typer.Option(600.0, "--duration-s", min=1.0, help="Length of the drive, seconds."),
-    rate_hz: float = typer.Option(100.0, "--rate-hz", min=0.1, help="Pose sample rate, Hz."),
-    edit_every_s: float = typer.Option(100.0, "--edit-every-s", min=0.0, help="One edit (true position + click noise) every this many seconds, at the middle of each interval; 0 for none."),
-    seed: int = typer.Option(1, "--seed", help="Random seed: the same options give the same drive."),
-    regime: str = typer.Option("mixed", "--regime", help="GNSS error regime: white (noise), drift (pose bias moving a few cm/s, raw GNSS beside), canyon (offset jumps of 5-20 m for minutes, inherited by the pose), canyon_ins (the same jumps in the raw GNSS only; the pose bridged them), outliers (50 m bursts), mixed (canyon + outliers + drift)."),
-    family: Optional[str] = typer.Option(None, "--family", help="Build the reported pose the way a real unit does instead of a regime's error (posefix.core.families): ekf (odometry and yaw rate fused with gated single-point GNSS), ekf_smoothed (the same forward-backward), ins_lowpass (a GNSS/INS pose following a low-passed copy of the fix's bias), scale_heading (dead reckoning with a scale error and a heading bias), time_offset (pose stamped late against GNSS), outage (ekf with three minutes without fixes), no_gnss (ekf, no gnss columns). GNSS at --gnss-rate-hz (1 Hz unless given)."),
-    osm: Optional[Path] = typer.Option(None, "--osm", metavar="FILE.pbf", help="Drive along the streets of this OpenStreetMap extract (e.g. ../shared/data/osm/helsinki.osm.pbf)."),
-    click_noise_m: float = typer.Option(0.5, "--click-noise-m", min=0.0, help="Operator click error of each edit, metres (1 sigma per horizontal axis)."),
-    gnss_rate_hz: Optional[float] = typer.Option(None, "--gnss-rate-hz", min=0.01, help="Raw GNSS fix rate, Hz (held between fixes); default 10, with --family 1."),
-    no_gnss_columns: bool = typer.Option(False, "--no-gnss-columns", help="Leave the raw GNSS columns out of run.csv (the location term then uses the reported pose)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
+    out: Path,
+    duration_s: float,
+    rate_hz: float,
+    edit_every_s: float,
+    seed: int,
+    regime: str,
+    family: Optional[str],
+    osm: Optional[Path],
+    click_noise_m: float,
+    gnss_rate_hz: Optional[float],
+    no_gnss_columns: bool,
+    quiet: bool,
 ) -> None:
     """Simulate a drive with ground truth: writes DIR/run.csv, DIR/truth.csv and DIR/edits.json."""
     with user_errors():
@@ -308,13 +338,13 @@ def simulate_command(
         steps.close()
         if not quiet:
             info = sim.info
-            typer.echo(
+            click.echo(
                 f"simulated {sim.run.n} samples ({duration_s:g} s at {rate_hz:g} Hz, "
                 f"{'family ' + family if family else 'regime ' + regime}, "
                 f"{info['path_length_m'] / 1000:.1f} km, mean speed {info['mean_speed_mps']:.1f} m/s, "
                 f"{len(sim.edits)} edits) -> {out}/run.csv, truth.csv, edits.json"
             )
-            typer.echo(
+            click.echo(
                 f"reported pose error (horizontal RMS) {info['pose_error_rms_m']:.2f} m; "
                 f"raw GNSS {info['gnss_error_rms_m']:.2f} m"
             )
@@ -323,16 +353,26 @@ def simulate_command(
 # --------------------------------------------------------------------------- convert
 
 
-@app.command("convert")
+@app.command("convert", context_settings=CONTEXT)
+@click.argument("input_path", metavar="IN", type=PATH)
+@click.argument("output_path", metavar="OUT", type=PATH)
+@click.option("--origin", help=ORIGIN_HELP)
+@click.option("--from", "input_format", help=f"Input format ({FORMAT_HELP}); default from IN.")
+@click.option("--to", "output_format", help="Output format (csv, parquet, arrow, gpx, geojson, tum); default from OUT's extension.")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing but errors.")
 def convert_command(
-    input_path: Path = typer.Argument(..., metavar="IN", help=f"Run to read: a file or folder ({FORMAT_HELP})."),
-    output_path: Path = typer.Argument(..., metavar="OUT", help="File to write (.csv, .parquet, .arrow, .gpx, .geojson, .tum)."),
-    origin: Optional[str] = typer.Option(None, "--origin", help=ORIGIN_HELP),
-    input_format: Optional[str] = typer.Option(None, "--from", help=f"Input format ({FORMAT_HELP}); default from IN."),
-    output_format: Optional[str] = typer.Option(None, "--to", help="Output format (csv, parquet, arrow, gpx, geojson, tum); default from OUT's extension."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing but errors."),
+    input_path: Path,
+    output_path: Path,
+    origin: Optional[str],
+    input_format: Optional[str],
+    output_format: Optional[str],
+    quiet: bool,
 ) -> None:
-    """Convert a pose run between formats (orientation derived from the track when IN has none)."""
+    """Convert a pose run between formats (orientation derived from the track when IN has none).
+
+    IN is the run to read: a file or folder (csv, parquet, arrow, gpx, geojson, tum, kitti or
+    comma2k19); OUT the file to write (.csv, .parquet, .arrow, .gpx, .geojson, .tum).
+    """
     with user_errors():
         o = _parse_origin(origin)
         from posefix.io import WRITE_FORMATS, detect_format, read_run, write_run
@@ -345,4 +385,4 @@ def convert_command(
         write_run(run, output_path, fmt=out_fmt, origin=o)
         if not quiet:
             derived = " (orientation derived from the track)" if run.orientation_derived else ""
-            typer.echo(f"converted {run.n} samples -> {output_path} ({out_fmt}){derived}")
+            click.echo(f"converted {run.n} samples -> {output_path} ({out_fmt}){derived}")

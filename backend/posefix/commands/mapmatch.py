@@ -12,20 +12,19 @@ import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, List, Optional
+from typing import Iterator, Optional
 
-import typer
+import click
 
-from posefix.commands.common import user_errors
+from posefix.commands.common import CONTEXT, user_errors
 
-app = typer.Typer()
+app = click.Group()
+PATH = click.Path(path_type=Path)
 
-mm = typer.Typer(
-    name="mapmatch",
-    help="Map matching with a conditional random field (MapCraft): indoor walks on floor plans.",
-    no_args_is_help=True,
-)
-app.add_typer(mm, name="mapmatch")
+
+@app.group("mapmatch", no_args_is_help=True)
+def mm() -> None:
+    """Map matching with a conditional random field (MapCraft): indoor walks on floor plans."""
 
 
 @contextmanager
@@ -46,20 +45,20 @@ def _parse_xy(text: str) -> tuple[float, float]:
     try:
         x, y = (float(v) for v in text.split(","))
     except ValueError:
-        raise typer.BadParameter(f"expected 'X,Y' in metres (floor frame), got {text!r}")
+        raise click.BadParameter(f"expected 'X,Y' in metres (floor frame), got {text!r}")
     return x, y
 
 
-@mm.command("build")
-def build(
-    floor: Path = typer.Option(..., "--floor", help="Competition floor directory (floor_info.json, geojson_map.json)."),
-    output: Path = typer.Option(..., "--output", "-o", help="Model file to write (.npz)."),
-    cell_m: float = typer.Option(0.8, "--cell-m", help="Cell size, metres."),
-    reach_m: float = typer.Option(1.7, "--reach-m", help="Longest single-step transition, metres."),
-    raster_m: float = typer.Option(0.1, "--raster-m", help="Resolution of the wall/walkable raster, metres."),
-    min_component_m2: float = typer.Option(20.0, "--min-component-m2", help="Drop connected areas smaller than this, m²."),
-    shops_walkable: bool = typer.Option(False, "--shops-walkable/--shops-blocked", help="Let tracks enter shop polygons (no door data)."),
-) -> None:
+@mm.command("build", context_settings=CONTEXT)
+@click.option("--floor", type=PATH, required=True, help="Competition floor directory (floor_info.json, geojson_map.json).")
+@click.option("--output", "-o", type=PATH, required=True, help="Model file to write (.npz).")
+@click.option("--cell-m", type=float, default=0.8, help="Cell size, metres.")
+@click.option("--reach-m", type=float, default=1.7, help="Longest single-step transition, metres.")
+@click.option("--raster-m", type=float, default=0.1, help="Resolution of the wall/walkable raster, metres.")
+@click.option("--min-component-m2", type=float, default=20.0, help="Drop connected areas smaller than this, m².")
+@click.option("--shops-walkable/--shops-blocked", default=False, help="Let tracks enter shop polygons (no door data).")
+def build(floor: Path, output: Path, cell_m: float, reach_m: float, raster_m: float, min_component_m2: float,
+          shops_walkable: bool) -> None:
     """Build a floor graph (one vertex per walkable cell) and save the model."""
     with user_errors():
         from posefix.mapmatch.api import build_model_report
@@ -69,21 +68,20 @@ def build(
         model, report = build_model_report(floor, cell_m=cell_m, reach_m=reach_m, raster_m=raster_m,
                                            min_component_m2=min_component_m2, shops_walkable=shops_walkable)
         for line in report.lines():
-            typer.echo(line)
+            click.echo(line)
         dt = time.perf_counter() - t0
         with _atomic(output, ".npz") as tmp:
             size = save_model(model, tmp)
         g = model.graph
-        typer.echo(f"model: {g.n_vertices} vertices, {g.indices.size // 2} edges, {g.offsets.shape[0]} step moves; "
+        click.echo(f"model: {g.n_vertices} vertices, {g.indices.size // 2} edges, {g.offsets.shape[0]} step moves; "
                    f"{size / 1024:.1f} KiB; built in {dt:.2f} s -> {output}")
 
 
-@mm.command("fingerprints")
-def fingerprints(
-    floor: Path = typer.Option(..., "--floor", help="Floor directory (checked to exist; positions are in its frame)."),
-    walks: List[Path] = typer.Option(..., "--walks", help="Walk files with TYPE_WAYPOINT lines (repeat the option)."),
-    output: Path = typer.Option(..., "--output", "-o", help="Fingerprint file to write (.npz)."),
-) -> None:
+@mm.command("fingerprints", context_settings=CONTEXT)
+@click.option("--floor", type=PATH, required=True, help="Floor directory (checked to exist; positions are in its frame).")
+@click.option("--walks", type=PATH, multiple=True, required=True, help="Walk files with TYPE_WAYPOINT lines (repeat the option).")
+@click.option("--output", "-o", type=PATH, required=True, help="Fingerprint file to write (.npz).")
+def fingerprints(floor: Path, walks: tuple[Path, ...], output: Path) -> None:
     """Build a WiFi fingerprint map (f3) and access-point peaks (f4) from surveyed walks."""
     with user_errors():
         from tqdm import tqdm
@@ -97,22 +95,22 @@ def fingerprints(
         fp = build_fingerprints(ws)
         with _atomic(output, ".npz") as tmp:
             size = save_fingerprints(fp, tmp)
-        typer.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points "
+        click.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points "
                    f"({fp.n_fitted_aps} with a fitted position), {len(fp.peak_xy_m)} peaks; "
                    f"covariance scale {fp.cov_scale:.2f} (held-out calibration), outlier rate "
                    f"{fp.outlier_frac:.2f}; {size / 1024:.1f} KiB -> {output}")
 
 
-@mm.command("train")
-def train(
-    model_path: Path = typer.Option(..., "--model", help="Model file from 'build'."),
-    walks: List[Path] = typer.Option(..., "--walks", help="Walk files with TYPE_WAYPOINT lines (repeat the option)."),
-    output: Path = typer.Option(..., "--output", "-o", help="Trained model file to write."),
-    heading_bias: bool = typer.Option(True, "--heading-bias/--no-heading-bias", help="Learn the sensor-to-floor heading bias (rad)."),
-    step_em: bool = typer.Option(False, "--step-em/--no-step-em", help="Learn the step constant gamma (m) by hard EM."),
-    weights: bool = typer.Option(True, "--weights/--no-weights", help="Learn the weights of f1, f2 by conditional likelihood."),
-    step_scale: bool = typer.Option(True, "--step-scale/--no-step-scale", help="Scale step lengths by surveyed / dead-reckoned distance between waypoints."),
-) -> None:
+@mm.command("train", context_settings=CONTEXT)
+@click.option("--model", "model_path", type=PATH, required=True, help="Model file from 'build'.")
+@click.option("--walks", type=PATH, multiple=True, required=True, help="Walk files with TYPE_WAYPOINT lines (repeat the option).")
+@click.option("--output", "-o", type=PATH, required=True, help="Trained model file to write.")
+@click.option("--heading-bias/--no-heading-bias", default=True, help="Learn the sensor-to-floor heading bias (rad).")
+@click.option("--step-em/--no-step-em", default=False, help="Learn the step constant gamma (m) by hard EM.")
+@click.option("--weights/--no-weights", default=True, help="Learn the weights of f1, f2 by conditional likelihood.")
+@click.option("--step-scale/--no-step-scale", default=True, help="Scale step lengths by surveyed / dead-reckoned distance between waypoints.")
+def train(model_path: Path, walks: tuple[Path, ...], output: Path, heading_bias: bool, step_em: bool, weights: bool,
+          step_scale: bool) -> None:
     """Learn heading bias, step-length scale, step constants and feature weights from surveyed walks.
 
     Each walk starts at its first waypoint; the waypoints clamp the likelihood (within 2 m).
@@ -133,26 +131,28 @@ def train(
         with _atomic(output, ".npz") as tmp:
             size = save_model(model2, tmp)
         for k, v in report.items():
-            typer.echo(f"{k}: {v}")
-        typer.echo(f"model: {size / 1024:.1f} KiB -> {output}")
+            click.echo(f"{k}: {v}")
+        click.echo(f"model: {size / 1024:.1f} KiB -> {output}")
 
 
-@mm.command("track")
-def track(
-    walk: Path = typer.Argument(..., help="Walk file (competition path format); waypoints are not read."),
-    model_path: Path = typer.Option(..., "--model", help="Model file."),
-    output: Path = typer.Option(..., "--output", "-o", help="TRACK.csv: t (unix ms), x, y (m), lat, lon, sigma_major_m, sigma_minor_m, angle_deg, converged, n_modes, mode_spread_m."),
-    fingerprints: Optional[Path] = typer.Option(None, "--fingerprints", help="Fingerprint file (adds f3/f4)."),
-    start: Optional[str] = typer.Option(None, "--start", help="Known start 'X,Y' in metres (floor frame); default: unknown (uniform)."),
-    heading: str = typer.Option("rotation_vector", "--heading", help="Heading source: rotation_vector or gyro_mag."),
-    wifi_method: str = typer.Option("knn", "--wifi-method", help="WiFi position from fingerprints: knn (weighted k-NN, default), pathloss or hybrid."),
-    estimate: str = typer.Option("mean", "--estimate", help="Rows: 'mean' (smoothed posterior mean) or 'viterbi' (most likely path)."),
-    wifi_corr_s: Optional[float] = typer.Option(
-        None, "--wifi-corr-s", min=0.0,
-        help="Correlation time of WiFi errors, seconds: scans closer than this share evidence "
-             "(default: the model's, 20 s; 0 counts every scan as independent)."),
-) -> None:
-    """Track a walk: one row per step with the smoothed position and its 1σ error ellipse."""
+@mm.command("track", context_settings=CONTEXT)
+@click.argument("walk", type=PATH)
+@click.option("--model", "model_path", type=PATH, required=True, help="Model file.")
+@click.option("--output", "-o", type=PATH, required=True, help="TRACK.csv: t (unix ms), x, y (m), lat, lon, sigma_major_m, sigma_minor_m, angle_deg, converged, n_modes, mode_spread_m.")
+@click.option("--fingerprints", type=PATH, help="Fingerprint file (adds f3/f4).")
+@click.option("--start", help="Known start 'X,Y' in metres (floor frame); default: unknown (uniform).")
+@click.option("--heading", default="rotation_vector", help="Heading source: rotation_vector or gyro_mag.")
+@click.option("--wifi-method", default="knn", help="WiFi position from fingerprints: knn (weighted k-NN, default), pathloss or hybrid.")
+@click.option("--estimate", default="mean", help="Rows: 'mean' (smoothed posterior mean) or 'viterbi' (most likely path).")
+@click.option("--wifi-corr-s", type=click.FloatRange(min=0.0),
+              help="Correlation time of WiFi errors, seconds: scans closer than this share evidence "
+                   "(default: the model's, 20 s; 0 counts every scan as independent).")
+def track(walk: Path, model_path: Path, output: Path, fingerprints: Optional[Path], start: Optional[str], heading: str,
+          wifi_method: str, estimate: str, wifi_corr_s: Optional[float]) -> None:
+    """Track a walk: one row per step with the smoothed position and its 1σ error ellipse.
+
+    WALK is the walk file (competition path format); its waypoints are not read.
+    """
     with user_errors():
         import numpy as np
         from tqdm import tqdm
@@ -175,24 +175,26 @@ def track(
         bar.close()
         with _atomic(output, ".csv") as tmp:
             write_track_csv(tmp, res, model.graph.georef)
-        typer.echo(f"track: {res.t_ms.size} rows, {1000 * res.time_per_step_s:.2f} ms/step, "
+        click.echo(f"track: {res.t_ms.size} rows, {1000 * res.time_per_step_s:.2f} ms/step, "
                    f"median 1σ {float(np.median(res.sigma_major_m)):.2f} m -> {output}")
         last = res.modes[-1]
         if last.converged:
-            typer.echo(f"converged: yes (one place holds {100 * last.mass[0]:.0f} %; converged on "
+            click.echo(f"converged: yes (one place holds {100 * last.mass[0]:.0f} %; converged on "
                        f"{100 * float(np.mean(res.converged)):.0f} % of the rows)")
         else:
-            typer.echo(f"converged: no - the walk fits {last.n} places up to {last.spread_m:.1f} m apart "
+            click.echo(f"converged: no - the walk fits {last.n} places up to {last.spread_m:.1f} m apart "
                        f"(the likeliest holds {100 * last.mass[0]:.0f} %); the rows are the posterior mean, not a fix")
 
 
-@mm.command("evaluate")
-def evaluate(
-    walk: Path = typer.Argument(..., help="Walk file with TYPE_WAYPOINT lines (the truth)."),
-    track_csv: Path = typer.Argument(..., help="TRACK.csv from 'track'."),
-    skip_first: bool = typer.Option(False, "--skip-first", help="Leave out the first waypoint (when it was the given start)."),
-) -> None:
-    """Error (m) at the waypoints, and at every row against the straight-line truth."""
+@mm.command("evaluate", context_settings=CONTEXT)
+@click.argument("walk", type=PATH)
+@click.argument("track_csv", metavar="TRACK_CSV", type=PATH)
+@click.option("--skip-first", is_flag=True, help="Leave out the first waypoint (when it was the given start).")
+def evaluate(walk: Path, track_csv: Path, skip_first: bool) -> None:
+    """Error (m) at the waypoints, and at every row against the straight-line truth.
+
+    WALK is the walk file with TYPE_WAYPOINT lines (the truth), TRACK_CSV the TRACK.csv from 'track'.
+    """
     with user_errors():
         from posefix.mapmatch.api import read_track_csv
         from posefix.mapmatch.evaluate import evaluate_track, summarise
@@ -203,4 +205,4 @@ def evaluate(
         e = evaluate_track(w.waypoints, t, p, skip_first=skip_first)
         for name, arr in (("waypoints", e.err_wp_m), ("steps", e.err_steps_m)):
             s = summarise([arr])
-            typer.echo(f"{name}: n={s['n']} mean={s['mean_m']:.2f} m median={s['median_m']:.2f} m p95={s['p95_m']:.2f} m")
+            click.echo(f"{name}: n={s['n']} mean={s['mean_m']:.2f} m median={s['median_m']:.2f} m p95={s['p95_m']:.2f} m")

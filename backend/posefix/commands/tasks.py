@@ -9,14 +9,18 @@
 from __future__ import annotations
 
 import json
-from typing import Annotated
+from typing import Optional
 
-import typer
+import click
 
-app = typer.Typer()
+from posefix.commands.common import CONTEXT
 
-tasks_app = typer.Typer(help="Crowdsourced correction tasks.", no_args_is_help=True)
-app.add_typer(tasks_app, name="tasks")
+app = click.Group()
+
+
+@app.group("tasks", no_args_is_help=True)
+def tasks_app() -> None:
+    """Crowdsourced correction tasks."""
 
 
 def _db():  # type: ignore[no-untyped-def]
@@ -27,7 +31,7 @@ def _db():  # type: ignore[no-untyped-def]
     return settings, Database(settings.resolved_database_url)
 
 
-@tasks_app.command("maintain")
+@tasks_app.command("maintain", context_settings=CONTEXT)
 def maintain() -> None:
     """Return expired leases to the pool, auto-approve due work, expire old tasks (once)."""
     from posefix.tasks import clock
@@ -39,11 +43,12 @@ def maintain() -> None:
             counts = maintain_tasks(s, clock.now())
     finally:
         db.dispose()
-    typer.echo(json.dumps(counts))
+    click.echo(json.dumps(counts))
 
 
-@tasks_app.command("list")
-def list_tasks(status: Annotated[str | None, typer.Option(help="only tasks in this status")] = None) -> None:
+@tasks_app.command("list", context_settings=CONTEXT)
+@click.option("--status", help="only tasks in this status")
+def list_tasks(status: Optional[str]) -> None:
     """Tasks, newest first, with assignment counts by status."""
     from posefix.tasks import repository as repo
 
@@ -54,13 +59,13 @@ def list_tasks(status: Annotated[str | None, typer.Option(help="only tasks in th
             counts = repo.counts_by_status(s, [t.id for t in rows])
             for t in rows:
                 c = ", ".join(f"{k} {v}" for k, v in sorted(counts[t.id].items())) or "-"
-                typer.echo(f"{t.id:>5}  {t.status:<11} p{t.priority:<4} {t.title[:40]:<40}  {c}")
+                click.echo(f"{t.id:>5}  {t.status:<11} p{t.priority:<4} {t.title[:40]:<40}  {c}")
     finally:
         db.dispose()
-    typer.echo(f"{total} task(s)")
+    click.echo(f"{total} task(s)")
 
 
-@tasks_app.command("operators")
+@tasks_app.command("operators", context_settings=CONTEXT)
 def operators() -> None:
     """Operator statistics as JSON lines."""
     from posefix.tasks import repository as repo
@@ -71,6 +76,6 @@ def operators() -> None:
         with db.transaction(write=False) as s:
             for row in operator_stats(s, repo.operators(s)):
                 row["qualifications"] = [{"name": q["name"], "value": q["value"]} for q in row["qualifications"]]
-                typer.echo(json.dumps(row, default=str))
+                click.echo(json.dumps(row, default=str))
     finally:
         db.dispose()
