@@ -74,6 +74,31 @@ def test_ties_are_broken_by_position_so_other_implementations_agree():
     assert m.n == 2 and m.mass[0] == m.mass[1] and m.mean_xy_m[0, 0] < m.mean_xy_m[1, 0]
 
 
+def test_a_converged_estimate_is_near_its_place_and_small_whatever_the_rest_does():
+    # The guarantee of the rule (module docstring): converged means the reported mean (of the
+    # whole posterior) is within σ·√(ε/(1 − ε)) of the main mode's mean, ε = 1 − its mass,
+    # and the reported 1σ is at most 5 m. Random mixtures of up to four blobs, anywhere.
+    rng = np.random.default_rng(7)
+    p = grid(80)
+    seen = 0
+    for _ in range(150):
+        n = int(rng.integers(1, 5))
+        mix = rng.dirichlet(np.full(n, 0.3))
+        mix[0] += rng.uniform(0, 3)  # often one dominant place
+        prob = sum(w * blob(p, rng.uniform(5, 59, 2), rng.uniform(0.5, 4)) / blob(p, (32, 32), 1).sum()
+                   for w in mix)
+        m = posterior_modes(p, prob)
+        if not m.converged:
+            continue
+        seen += 1
+        w = prob / prob.sum()
+        eps = 1.0 - m.mass[0]
+        shift = np.linalg.norm(w @ p - m.mean_xy_m[0])
+        assert m.sigma_major_m <= 5.0 and m.mass[0] >= 0.95
+        assert shift <= m.sigma_major_m * np.sqrt(eps / (1 - eps)) + 1e-9, (shift, m)
+    assert seen >= 30  # the property was exercised
+
+
 def test_step_correction_recovers_a_walks_heading_and_scale_from_its_converged_stretches():
     from posefix.mapmatch.calibrate import apply_step_correction, estimate_step_correction
 

@@ -50,6 +50,7 @@ interface BinGrid {
   dil: Uint8Array;
   label: Int32Array;
   stack: Int32Array;
+  sorted: Float64Array;
   w: Float64Array; // per live vertex
 }
 
@@ -77,7 +78,7 @@ function binGrid(px: Float64Array, py: Float64Array, bin_m: number): BinGrid {
   const bin = new Int32Array(px.length);
   for (let v = 0; v < px.length; v++) bin[v] = by[v] * cols + bx[v];
   const nb = rows * cols;
-  const g = { bin_m, bin, rows, cols, mass: new Float64Array(nb), keep: new Uint8Array(nb), dil: new Uint8Array(nb), label: new Int32Array(nb), stack: new Int32Array(nb), w: new Float64Array(px.length) };
+  const g = { bin_m, bin, rows, cols, mass: new Float64Array(nb), keep: new Uint8Array(nb), dil: new Uint8Array(nb), label: new Int32Array(nb), stack: new Int32Array(nb), sorted: new Float64Array(nb), w: new Float64Array(px.length) };
   grids.set(px, g);
   return g;
 }
@@ -88,13 +89,11 @@ function binGrid(px: Float64Array, py: Float64Array, bin_m: number): BinGrid {
  * cumulative sum runs over the masses in that order, so a native sort of the masses alone
  * finds where it crosses `support`; then the tied bins at the crossing are taken in index order.
  */
-function supportBins(m: Float64Array, support: number, keep: Uint8Array): void {
+function supportBins(m: Float64Array, support: number, keep: Uint8Array, scratch: Float64Array): void {
   keep.fill(0);
   let nz = 0;
-  for (let b = 0; b < m.length; b++) if (m[b] > 0) nz++;
-  const sorted = new Float64Array(nz);
-  for (let b = 0, i = 0; b < m.length; b++) if (m[b] > 0) sorted[i++] = m[b];
-  sorted.sort();
+  for (let b = 0; b < m.length; b++) if (m[b] > 0) scratch[nz++] = m[b];
+  const sorted = scratch.subarray(0, nz).sort();
   // Bins without mass come last in the order and are never needed: the mass sums to 1 > support.
   let cum = 0;
   let i = nz - 1;
@@ -184,7 +183,7 @@ export function posteriorModes(px: Float64Array, py: Float64Array, weight: Float
     w[i] = x;
     m[bin[live[i]]] += x;
   }
-  supportBins(m, support, keep);
+  supportBins(m, support, keep, grid.sorted);
   const count = labelDilated(grid);
   const mass = new Float64Array(count + 1);
   const sx = new Float64Array(count + 1);
