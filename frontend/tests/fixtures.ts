@@ -9,7 +9,7 @@ export function straightDoc(n = 20, rules: EditRules = RULES): RunDoc {
   const keyframes: Keyframe[] = [];
   for (let k = 0; k < n; k++) {
     const p = eastOf(origin, k * 10);
-    keyframes.push({ index: k, t_s: k, lonlat: p, reported: p, heading_deg: 90, adjustable: k % rules.every_n === 0, locked: false, edited: false, deleted: false, flagged: false, images: k === 0 ? ["1", "2"] : [], correction_m: 0 });
+    keyframes.push({ index: k, t_s: k, lonlat: p, reported: p, heading_deg: 90, adjustable: k % rules.every_n === 0, locked: false, edited: false, deleted: false, flagged: false, images: k === 0 ? ["1", "2"] : [], correction_m: 0, sigma_m: null });
   }
   return { runId: "1", name: "test", revision: 1, rules, keyframes, drift: null, baseMoves: new Map() };
 }

@@ -26,13 +26,19 @@ describe("status bar and toolbar", () => {
     expect(currentDrift(s)?.offset_m).toBeNull();
     s = perform(s, actionMoveKeyframe(4, eastOf(origin, 40, 5)));
     s = setPreview(s, currentEdits(s), doc.keyframes.map((k) => k.lonlat), 0.01, driftFrom({ offset_enu_m: [6, 8, 0], spread_m: 1, detected: true, n_edits: 1, max_bias_m: 10 }));
-    expect(currentDrift(s)).toEqual({ offset_m: 10, spread_m: 1, max_bias_m: 10, detected: true, n_edits: 1, model: null, cv_rmse_m: null });
+    expect(currentDrift(s)).toEqual({ offset_m: 10, spread_m: 1, max_bias_m: 10, detected: true, n_edits: 1, model: null, cv_rmse_m: null, predicted_rmse_m: null });
   });
   it("names the model the edits chose and its cross-validated RMSE", () => {
     const drift = driftFrom({ offset_enu_m: [3, 4, null], spread_m: 1, detected: true, n_edits: 9,
       calibration: { model: "relative", cv_rmse_m: 1.234, predicted_rmse_m: 0.8 } });
     expect(drift?.model).toBe("relative");
-    expect(driftText(drift!)).toBe("GNSS offset 5.0 m (spread 1.0 m) from 9 edits. Model: relative, cross-validated RMSE 1.23 m at held-out edits.");
+    expect(driftText(drift!)).toBe("Model: relative, cross-validated RMSE 1.23 m at held-out edits; predicted RMSE along the run 0.80 m.");
+    expect(driftText(driftFrom({ offset_enu_m: [3, 4, null], n_edits: 2, calibration: { model: "prior", cv_rmse_m: null } })!))
+      .toBe("GNSS offset 5.0 m from 2 edits. Model: prior.");
+    // a model without the drift model tells no GNSS offset
+    expect(driftText(driftFrom({ offset_enu_m: [null, null, null], detected: false, n_edits: 0,
+      calibration: { model: "naive", cv_rmse_m: 2.5, predicted_rmse_m: 1.5 } })!))
+      .toBe("Model: naive, cross-validated RMSE 2.50 m at held-out edits; predicted RMSE along the run 1.50 m.");
   });
   it("formats run times relative to the start, with UTC for Unix times", () => {
     expect(formatRunTime(12.5, 2.5)).toBe("10.00 s into the run");

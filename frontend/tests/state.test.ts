@@ -160,7 +160,7 @@ describe("API conversions", () => {
       features: [0, 1].map((i) => ({
         type: "Feature",
         geometry: { type: "Point", coordinates: [24.9 + i * 1e-4, 60.1] },
-        properties: { index: i, t: i * 0.5, heading_deg: 45, adjustable: i === 0, locked: false, edited: false, deleted: false, flagged: false, has_images: true, images: [7], reported: [24.9, 60.1], correction_m: 2 },
+        properties: { index: i, t: i * 0.5, heading_deg: 45, adjustable: i === 0, locked: false, edited: false, deleted: false, flagged: false, has_images: true, images: [7], reported: [24.9, 60.1], correction_m: 2, sigma_m: i === 0 ? 1.25 : null },
       })),
     };
     const d = docFromKeyframes("9", "drive", fc);
@@ -169,6 +169,7 @@ describe("API conversions", () => {
     expect(d.rules.order_rule).toBe("flag");
     expect(d.keyframes[1].lonlat[0]).toBeCloseTo(24.9001);
     expect(d.keyframes[0].images).toEqual(["7"]);
+    expect(d.keyframes.map((k) => k.sigma_m)).toEqual([1.25, null]);
     expect(driftFrom(fc.drift)?.offset_m).toBe(5);
     const e = { moves: new Map([[5, [1, 2] as const], [0, [3, 4] as const]]), deleted: new Set([9, 2]), accept: false };
     const b = editsBody(e);

@@ -218,6 +218,22 @@ class TestSubmit:
         assert len(rows) == 600
         assert abs(float(rows[200]["lon"]) - xy1[20, 0]) < 1e-7
 
+    def test_revision_carries_the_predicted_one_sigma_per_keyframe(self, client, users, app):
+        rid = new_run(client, users)
+        _, xy = kf_coords(client, users["admin"], rid)
+        moves = [{"index": i, "lon": xy[i, 0] + (3 + i % 7) * METRE_LON, "lat": xy[i, 1]} for i in (5, 20, 35, 50)]
+        r = client.post(f"/api/v1/runs/{rid}/edits", json={"base_revision": 0, "moves": moves}, headers=users["admin"])
+        assert r.status_code == 202, r.text
+        assert wait_job(app, r.json()["job_id"])["status"] == "succeeded"
+        fc, _ = kf_coords(client, users["admin"], rid)
+        sigma = [f["properties"]["sigma_m"] for f in fc["features"]]
+        assert all(isinstance(v, float) and v > 0 for v in sigma)
+        cal = fc["drift"]["calibration"]
+        assert cal["predicted_rmse_m"] > 0 and cal["model"] in ("gnss", "plain", "relative", "naive")
+        # revision 0 (no edits) predicts nothing
+        r0, _ = kf_coords(client, users["admin"], rid, revision=0)
+        assert all(f["properties"]["sigma_m"] is None for f in r0["features"])
+
     def test_if_match_header(self, client, users, app):
         rid = new_run(client, users)
         r = client.post(f"/api/v1/runs/{rid}/edits", json={"deleted": [5]}, headers={**users["admin"], "If-Match": '"0"'})

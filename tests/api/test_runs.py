@@ -174,7 +174,7 @@ class TestKeyframes:
         assert f["geometry"]["type"] == "Point"
         p = f["properties"]
         assert set(p) >= {"index", "t", "heading_deg", "adjustable", "locked", "edited", "deleted", "flagged",
-                          "has_images", "images", "reported", "correction_m"}
+                          "has_images", "images", "reported", "correction_m", "sigma_m"}
         assert p["index"] == 10 and p["correction_m"] == 0.0 and p["reported"] == f["geometry"]["coordinates"]
         assert abs(p["heading_deg"] - 0.0) < 1e-6 or abs(p["heading_deg"] - 360.0) < 1e-6
         assert fc["line"]["type"] == "LineString" and len(fc["line"]["coordinates"]) == 600

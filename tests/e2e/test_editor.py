@@ -137,6 +137,37 @@ class TestDragPreviewUndoSubmit:
         shot(page, "after-submit")
 
 
+class TestPredictedAccuracy:
+    def test_revision_shows_the_predicted_rmse_and_the_one_sigma_band(self, server, context, run_id):
+        # four edits saved through the API (the editor's drag is tested above), then the editor shows
+        # the model the held-out edits chose, the RMSE it predicts, and the 1-sigma band on the chart
+        import math
+        import time
+
+        c = server.srv.client("admin")
+        try:
+            fc = c.get(f"/api/v1/runs/{run_id}/keyframes").json()
+            xy = [f["geometry"]["coordinates"] for f in fc["features"]]
+            m_lon = 1.0 / (111_320.0 * math.cos(math.radians(xy[0][1])))
+            moves = [{"index": i, "lon": xy[i][0] + (3.0 + i % 5) * m_lon, "lat": xy[i][1]} for i in (6, 20, 36, 50)]
+            r = c.post(f"/api/v1/runs/{run_id}/edits", json={"base_revision": 0, "moves": moves})
+            assert r.status_code == 202, r.text
+            deadline = time.time() + 60
+            while c.get(f"/api/v1/runs/{run_id}/keyframes?revision=1").status_code != 200:
+                assert time.time() < deadline, "revision 1 never became ready"
+                time.sleep(0.3)
+        finally:
+            c.close()
+        page = context.new_page()
+        login(page, server)
+        open_run(page, server, run_id)
+        wait_revision(page, 1)
+        page.wait_for_function("() => document.querySelector('canvas.chart').dataset.band === '1sigma'", timeout=15_000)
+        text = page.get_by_test_id("drift").inner_text()
+        assert re.search(r"Model: \w+, cross-validated RMSE \d+\.\d\d m at held-out edits; predicted RMSE along the run \d+\.\d\d m\.", text), text
+        shot(page, "predicted-band")
+
+
 class TestRefusals:
     def test_each_refusal_is_shown_where_dropped_and_the_marker_returns(self, server, context, run_id):
         page = context.new_page()

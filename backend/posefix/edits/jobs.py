@@ -103,9 +103,11 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
     corr = problem.full_run(sol)
     lon, lat, alt = problem.lonlatalt(sol)
     line_lon, line_lat = storage.decimate_line(corr.run.lon_deg, corr.run.lat_deg, settings.line_max_points)
+    sigma = getattr(sol.drift.calibration, "sigma_m", None)
     arrays = storage.KeyframeArrays(
         lon_deg=lon, lat_deg=lat, alt_m=alt, heading_deg=storage.heading_deg(sol.keyframes.q_wxyz),
         line_lon_deg=line_lon, line_lat_deg=line_lat,
+        sigma_m=None if sigma is None or len(sigma) != len(lon) else sigma,
     )
     ctx.progress(0.8, "writing revision")
     stem = f"runs/{run_id}/r{number}-{uuid.uuid4().hex[:8]}"

@@ -292,6 +292,7 @@ def _render_geojson(session: Session, settings: Settings, run: Run, rev: Revisio
     lon, lat = _rounded(arrays.lon_deg, 7), _rounded(arrays.lat_deg, 7)
     rlon, rlat = _rounded(rep_lon, 7), _rounded(rep_lat, 7)
     heading = _rounded(arrays.heading_deg, 2)
+    sigma = [None] * len(kfs) if arrays.sigma_m is None else _rounded(arrays.sigma_m, 3)
     features = []
     for i, (kk, sample, t, _lon, _lat, _alt) in enumerate(kfs):
         imgs = images_by_k.get(kk, [])
@@ -304,7 +305,7 @@ def _render_geojson(session: Session, settings: Settings, run: Run, rev: Revisio
                 "edited": kk in edited, "deleted": kk in deleted, "flagged": kk in flagged,
                 "flag_reason": flagged[kk]["reason"] if kk in flagged else None,
                 "has_images": bool(imgs), "images": imgs, "reported": [rlon[i], rlat[i]],
-                "correction_m": corr_m[i],
+                "correction_m": corr_m[i], "sigma_m": sigma[i],
             },
         })
     body = {

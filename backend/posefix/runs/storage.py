@@ -134,7 +134,8 @@ def read_samples(store: FileStore, rel: str, *, orientation_derived: bool, sourc
 @dataclass(frozen=True)
 class KeyframeArrays:
     """One revision's keyframes: positions (k,) degrees/metres, heading (deg clockwise from
-    north), and the decimated full-rate line for display."""
+    north), the decimated full-rate line for display, and the horizontal 1-sigma of each
+    keyframe's correction the run's held-out edits predict (None: fewer than three edits)."""
 
     lon_deg: np.ndarray
     lat_deg: np.ndarray
@@ -142,15 +143,17 @@ class KeyframeArrays:
     heading_deg: np.ndarray
     line_lon_deg: np.ndarray
     line_lat_deg: np.ndarray
+    sigma_m: np.ndarray | None = None
 
 
 def write_keyframes(store: FileStore, rel: str, kf: KeyframeArrays) -> str:
     dst = store.path(rel)
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = dst.with_name(f".{dst.name}.{uuid.uuid4().hex}.tmp.npz")
+    extra = {} if kf.sigma_m is None else {"sigma_m": kf.sigma_m}
     np.savez_compressed(
         tmp, lon_deg=kf.lon_deg, lat_deg=kf.lat_deg, alt_m=kf.alt_m, heading_deg=kf.heading_deg,
-        line_lon_deg=kf.line_lon_deg, line_lat_deg=kf.line_lat_deg,
+        line_lon_deg=kf.line_lon_deg, line_lat_deg=kf.line_lat_deg, **extra,
     )
     os.replace(tmp, dst)
     return rel

@@ -17,6 +17,7 @@ interface KeyframeProps {
   images?: (string | number)[];
   reported?: [number, number] | null;
   correction_m?: number | null;
+  sigma_m?: number | null;
 }
 
 /** Parse `GET /runs/{id}/keyframes` (a GeoJSON FeatureCollection with extras on top). */
@@ -41,6 +42,7 @@ export function docFromKeyframes(runId: string, name: string, fc: Record<string,
       flagged: Boolean(p.flagged),
       images: (p.images ?? []).map(String),
       correction_m: Number(p.correction_m ?? 0),
+      sigma_m: typeof p.sigma_m === "number" && Number.isFinite(p.sigma_m) ? p.sigma_m : null,
     };
   });
   return {
@@ -80,6 +82,7 @@ export function driftFrom(raw: unknown): Drift | null {
     n_edits: num(d.n_edits),
     model: cal && typeof cal.model === "string" ? cal.model : null,
     cv_rmse_m: cal ? num(cal.cv_rmse_m) : null,
+    predicted_rmse_m: cal ? num(cal.predicted_rmse_m) : null,
   };
 }
 

@@ -37,6 +37,8 @@ export interface Keyframe {
   flagged: boolean;
   images: string[];
   correction_m: number;
+  /** Horizontal 1-sigma of the correction the run's held-out edits predict (m); null with fewer than three edits. */
+  sigma_m: number | null;
 }
 
 /** The engine's GNSS drift estimate (bias of GNSS against the operators' edits). */
@@ -48,10 +50,11 @@ export interface Drift {
   max_bias_m: number | null;
   detected: boolean | null;
   n_edits: number | null;
-  /** The model the run's own held-out edits chose (gnss, plain, relative, prior), and its
-   * cross-validated RMSE at the edits (m). */
+  /** The model the run's own held-out edits chose (gnss, plain, relative, naive, prior), its
+   * cross-validated RMSE at the edits (m) and the RMSE along the run it predicts (m). */
   model: string | null;
   cv_rmse_m: number | null;
+  predicted_rmse_m: number | null;
 }
 
 /** A run's keyframes at one revision: what the editor edits against. */

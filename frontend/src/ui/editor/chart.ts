@@ -1,6 +1,7 @@
 /**
  * Correction magnitude (m) along the run, drawn on a canvas: the current (preview) correction
- * as a filled profile, the loaded revision's as a faint line, the selection as a cursor.
+ * as a filled profile, the loaded revision's as a faint line, the loaded revision's predicted
+ * 1-sigma as a band about the current profile, the selection as a cursor.
  * Clicking picks the keyframe under the pointer.
  */
 export interface ChartData {
@@ -8,6 +9,8 @@ export interface ChartData {
   before: number[];
   selected: number | null;
   deleted: boolean[];
+  /** Per-keyframe horizontal 1-sigma (m), null where none was predicted. */
+  sigma?: (number | null)[];
 }
 
 export class CorrectionChart {
@@ -49,7 +52,10 @@ export class CorrectionChart {
     g.clearRect(0, 0, w, hgt);
     const { now, before, selected } = this.data;
     const n = now.length;
-    const maxM = Math.max(1, ...now, ...before);
+    const sigma = this.data.sigma && this.data.sigma.length === n && this.data.sigma.some((v) => v !== null) ? this.data.sigma : null;
+    this.canvas.dataset.band = sigma ? "1sigma" : "";
+    const upper = sigma ? now.map((m, i) => m + (sigma[i] ?? 0)) : [];
+    const maxM = Math.max(1, ...now, ...before, ...upper);
     const top = niceCeil(maxM);
     const pw = w - PAD_L - PAD_R, ph = hgt - PAD_T - PAD_B;
     const x = (i: number) => PAD_L + (n <= 1 ? 0 : (i / (n - 1)) * pw);
@@ -82,6 +88,16 @@ export class CorrectionChart {
       profile(before).forEach(([px, py], i) => (i ? g.lineTo(px, py) : g.moveTo(px, py)));
       g.stroke();
     }
+    if (sigma) {
+      // the band about the current profile: |correction| +- 1 sigma, floored at zero
+      const hi = profile(upper), lo = profile(now.map((m, i) => Math.max(0, m - (sigma[i] ?? 0))));
+      g.fillStyle = "rgba(245,158,11,0.25)";
+      g.beginPath();
+      hi.forEach(([px, py], i) => (i ? g.lineTo(px, py) : g.moveTo(px, py)));
+      for (let i = lo.length - 1; i >= 0; i--) g.lineTo(lo[i][0], lo[i][1]);
+      g.closePath();
+      g.fill();
+    }
     const p = profile(now);
     g.fillStyle = "rgba(37,99,235,0.25)";
     g.strokeStyle = "#2563eb";
@@ -99,7 +115,8 @@ export class CorrectionChart {
       g.lineWidth = 2;
       g.beginPath(); g.moveTo(x(selected), PAD_T); g.lineTo(x(selected), PAD_T + ph); g.stroke();
       g.fillStyle = "#0f172a";
-      g.fillText(`#${selected}: ${fmt(now[selected])} m`, Math.min(x(selected) + 4, w - 90), PAD_T + 10);
+      const sd = sigma?.[selected];
+      g.fillText(`#${selected}: ${fmt(now[selected])}${sd != null ? ` ± ${fmt(sd)}` : ""} m`, Math.min(x(selected) + 4, w - 110), PAD_T + 10);
     }
   }
 }

@@ -74,7 +74,7 @@ export function selectionInfo(s: EditorState): HTMLElement {
 
 export function driftInfo(s: EditorState): HTMLElement {
   const d = currentDrift(s);
-  if (!d || (d.offset_m === null && !d.n_edits)) {
+  if (!d || (d.offset_m === null && !d.n_edits && !d.model)) {
     return h("p", { class: "muted", "data-testid": "drift" }, "No drift estimate yet: it needs moved keyframes.");
   }
   return h("p", { "data-testid": "drift" }, driftText(d));
@@ -82,14 +82,18 @@ export function driftInfo(s: EditorState): HTMLElement {
 
 /** The drift estimate in words, with the model the run's held-out edits chose. */
 export function driftText(d: Drift): string {
+  // the models without the drift model (plain, relative, naive) have no GNSS offset to tell
+  const drift = d.model === null || d.model === "gnss" || d.model === "prior";
   return [
-    d.detected === false ? "No GNSS drift detected" : d.offset_m !== null ? `GNSS offset ${d.offset_m.toFixed(1)} m` : "GNSS drift estimated",
-    d.spread_m !== null && Number.isFinite(d.spread_m) ? ` (spread ${d.spread_m.toFixed(1)} m)` : "",
-    d.max_bias_m !== null && d.max_bias_m > 0 ? `, largest bias ${d.max_bias_m.toFixed(1)} m` : "",
-    d.n_edits ? ` from ${d.n_edits} edit${d.n_edits === 1 ? "" : "s"}` : "",
-    ".",
-    d.model ? ` Model: ${d.model}` : "",
-    d.model && d.cv_rmse_m !== null ? `, cross-validated RMSE ${d.cv_rmse_m.toFixed(2)} m at held-out edits.` : d.model ? "." : "",
+    !drift ? "" : d.detected === false ? "No GNSS drift detected" : d.offset_m !== null ? `GNSS offset ${d.offset_m.toFixed(1)} m` : "GNSS drift estimated",
+    drift && d.spread_m !== null && Number.isFinite(d.spread_m) ? ` (spread ${d.spread_m.toFixed(1)} m)` : "",
+    drift && d.max_bias_m !== null && d.max_bias_m > 0 ? `, largest bias ${d.max_bias_m.toFixed(1)} m` : "",
+    drift && d.n_edits ? ` from ${d.n_edits} edit${d.n_edits === 1 ? "" : "s"}` : "",
+    drift ? "." : "",
+    d.model ? `${drift ? " " : ""}Model: ${d.model}` : "",
+    d.model && d.cv_rmse_m !== null ? `, cross-validated RMSE ${d.cv_rmse_m.toFixed(2)} m at held-out edits` : "",
+    d.model && d.predicted_rmse_m !== null ? `; predicted RMSE along the run ${d.predicted_rmse_m.toFixed(2)} m` : "",
+    d.model ? "." : "",
   ].join("");
 }
 

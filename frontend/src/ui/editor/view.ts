@@ -97,7 +97,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
   });
   const statusEl = h("div", { class: "statusbar", role: "status", "data-testid": "statusbar" });
   const submitMsg = h("span", { class: "submit-msg", "data-testid": "submit-msg" });
-  const bottom = h("div", { class: "bottom" }, h("div", { class: "chart-wrap" }, h("span", { class: "chart-title" }, "Correction (m) along the run"), chart.canvas), h("div", { class: "status-row" }, statusEl, submitMsg));
+  const bottom = h("div", { class: "bottom" }, h("div", { class: "chart-wrap" }, h("span", { class: "chart-title" }, "Correction (m) along the run, band: predicted 1σ"), chart.canvas), h("div", { class: "status-row" }, statusEl, submitMsg));
   const conflict = new ConflictPanel({ reapply: () => void ctl.reloadAndReapply(), discard: () => void ctl.reloadDiscarding() });
   const rangeConfirm = new RangeConfirm();
   const refusal = new RefusalView(() => store.update(dismissRefusal));
@@ -247,7 +247,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     if (cd.some((d, i) => d !== chartDeps[i])) {
       chartDeps = cd;
       const st = keyframeStatuses(s);
-      chart.set({ now: correctionMagnitudes(s), before: s.doc ? s.doc.keyframes.map((k) => k.correction_m) : [], selected: s.selected, deleted: st.map((x) => x === "deleted") });
+      chart.set({ now: correctionMagnitudes(s), before: s.doc ? s.doc.keyframes.map((k) => k.correction_m) : [], selected: s.selected, deleted: st.map((x) => x === "deleted"), sigma: s.doc ? s.doc.keyframes.map((k) => k.sigma_m) : [] });
     }
     if (prev?.selected !== s.selected && images.isOpen && s.selected !== null && s.doc) openImages(s.selected);
     if (!prev || prev.refusal !== s.refusal) refusal.show(s, map);
