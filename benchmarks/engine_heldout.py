@@ -1,5 +1,6 @@
 """Held-out accuracy for ``benchmarks.engine``: pose-error families the engine was not designed
-on (``posefix.core.families``), and a real urban-canyon drive (Nagoya, real single-point fixes).
+on (``posefix.core.families``), a real urban-canyon drive (Nagoya, real single-point fixes) and
+the real comma2k19 minute (comma's fused pose as the truth, its real u-blox fixes).
 
 Families and seeds are split in two: the *tuned* half is what a change to the engine may be
 looked at on; the *held-out* half and the real drive are reported untouched, apart.  Each
@@ -17,7 +18,7 @@ import numpy as np
 
 from posefix.core import geodesy
 from posefix.core import rotations as rot
-from posefix.core.families import _yaw_quat, ekf_pose, reported_run, simulate_family
+from posefix.core.families import _truth_yaw, _yaw_quat, ekf_pose, reported_run, simulate_family
 from posefix.core.propagate import propagate_corrections
 from posefix.core.run import PoseRun
 from posefix.core.simulate import SimEdit, Simulation
@@ -25,6 +26,8 @@ from posefix.engine import CorrectionConfig, prepare
 
 ROOT = Path(__file__).resolve().parents[1]
 NAGOYA = ROOT / "data" / "nagoya-meieki-2023"
+COMMA = ROOT / "data" / "comma2k19"
+COMMA_SPACINGS_S = (10.0, 20.0)  # the segment lasts a minute
 TUNED = (("ekf", "time_offset", "no_gnss"), (11,))
 HELD_OUT = (("ekf_smoothed", "ins_lowpass", "scale_heading", "outage"), (21,))
 SPACINGS_S = (30.0, 100.0, 300.0)
@@ -67,6 +70,27 @@ def nagoya_case(variant: str, every_s: float, seed: int = 5) -> Simulation:
                        f"Nagoya {variant}")
     edits = edits_on(truth, o, every_s, np.random.default_rng(seed + 1))
     return Simulation(truth=truth, run=run, edits=edits, regime=f"nagoya-{variant}", origin=o)
+
+
+def comma_case(variant: str, every_s: float, seed: int = 7) -> Simulation:
+    """The real comma2k19 minute: comma's fused global pose as the truth, its real u-blox fixes,
+    and a reported pose built as for Nagoya (``nagoya_case``) on that motion."""
+    from posefix.io import read_run
+
+    ref = read_run(COMMA)
+    o = geodesy.EnuOrigin(float(ref.lat_deg[0]), float(ref.lon_deg[0]), float(ref.alt_m[0]))
+    p_t = geodesy.geodetic_to_enu(ref.lat_deg, ref.lon_deg, ref.alt_m, o)
+    g = geodesy.geodetic_to_enu(ref.gnss_lat_deg, ref.gnss_lon_deg, ref.gnss_alt_m, o)
+    speed = np.hypot(*np.gradient(p_t[:, :2], ref.t_s, axis=0).T)
+    yaw = _truth_yaw(p_t, speed)
+    rng = np.random.default_rng(seed)
+    p_rep, yaw_r = ekf_pose(ref.t_s, p_t[:, :2], yaw, speed, g[:, :2], rng, scale=0.01,
+                            gyro_bias_rps=np.radians(0.05), smoothed=variant == "smoothed")
+    truth = PoseRun(t_s=ref.t_s, lat_deg=ref.lat_deg, lon_deg=ref.lon_deg, alt_m=ref.alt_m,
+                    q_body_to_enu_wxyz=ref.q_body_to_enu_wxyz, source="comma2k19 global pose")
+    run = reported_run(truth, truth, p_rep, yaw_r - yaw, o, None if variant == "no_gnss" else g, f"comma2k19 {variant}")
+    edits = edits_on(truth, o, every_s, np.random.default_rng(seed + 1))
+    return Simulation(truth=truth, run=run, edits=edits, regime=f"comma-{variant}", origin=o)
 
 
 def naive_positions(problem, sim) -> np.ndarray:
@@ -119,6 +143,12 @@ def real_rows():
             yield dict(score(nagoya_case(variant, every)), every=every, seed="-")
 
 
+def comma_rows():
+    for variant in ("ekf", "smoothed", "no_gnss"):
+        for every in COMMA_SPACINGS_S:
+            yield dict(score(comma_case(variant, every)), every=every, seed="-")
+
+
 def print_rows(title: str, rows) -> list[dict]:
     print(f"\n   {title}")
     print(f"   {'case':>16} {'seed':>4} {'every':>6} {'edits':>5} {'input':>7} {'naive':>7} {'GTSAM':>7} {'posefix':>8} "
@@ -160,9 +190,12 @@ def print_heldout_section(duration_s: float = 1800.0, rate_hz: float = 5.0, quic
                       family_rows(fams_h, seeds_h, duration_s, rate_hz))
     real = print_rows("held out, real: Nagoya urban canyon, EKF pose on real fixes (smoothed, without gnss columns)",
                       real_rows())
+    comma = print_rows("held out, real: comma2k19, one minute, EKF pose on its real u-blox fixes (edits every 10 and 20 s)",
+                       comma_rows())
     summary("tuned half", tuned)
     summary("held-out half", held)
-    summary("real drive", real)
+    summary("real drive (Nagoya)", real)
+    summary("real drive (comma2k19)", comma)
 
 
 if __name__ == "__main__":
