@@ -310,22 +310,10 @@ def walk_bootstrap(errors: list[np.ndarray], n_boot: int = 2000, seed: int = 0) 
 
 
 def mahalanobis2_at_waypoints(waypoints: np.ndarray, res, skip_first: bool = False) -> np.ndarray:
-    """Squared Mahalanobis distance (w,) of each waypoint's error under the reported ellipse:
-    the track interpolated at the waypoint's time (as the error is measured) against the
-    covariance of the track row nearest in time, rebuilt from its 1σ semi-axes and angle.
-    A calibrated 2-D Gaussian gives a χ²₂: median 1.39, 86 % within 4 (the 2σ ellipse)."""
-    from posefix.mapmatch.evaluate import interpolate_xy
+    """:func:`posefix.mapmatch.evaluate.mahalanobis2_at_waypoints` (its one home)."""
+    from posefix.mapmatch.evaluate import mahalanobis2_at_waypoints as m2
 
-    wp = np.asarray(waypoints, dtype=float)
-    t = np.asarray(res.t_ms, dtype=float)
-    err = interpolate_xy(wp[:, 0], t, res.p_xy_m) - wp[:, 1:3]
-    i = np.clip(np.searchsorted(t, wp[:, 0]), 1, t.size - 1)
-    i = np.where(np.abs(t[i - 1] - wp[:, 0]) <= np.abs(t[i] - wp[:, 0]), i - 1, i) if t.size > 1 else np.zeros_like(i)
-    a = np.radians(res.angle_deg[i])
-    u = np.stack([np.cos(a), np.sin(a)], axis=1)  # major axis
-    v = np.stack([-np.sin(a), np.cos(a)], axis=1)
-    m2 = (np.sum(err * u, axis=1) / res.sigma_major_m[i]) ** 2 + (np.sum(err * v, axis=1) / res.sigma_minor_m[i]) ** 2
-    return m2[1:] if skip_first else m2
+    return m2(waypoints, res, skip_first=skip_first)
 
 
 def nearest_m(p_xy_m: np.ndarray, survey_xy_m: np.ndarray) -> np.ndarray:

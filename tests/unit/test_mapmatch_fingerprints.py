@@ -241,3 +241,33 @@ def test_fingerprint_file_keeps_the_peak_sigma(tmp_path):
     save_fingerprints(fp, tmp_path / "bad.npz")
     with pytest.raises(ValueError, match=r"bad\.npz:0: field peak_sigma_m"):
         load_fingerprints(tmp_path / "bad.npz")
+
+
+def long_survey_walks(rng, shift_m):
+    """Eight 80 s walks up and down the rows (a scan a second); each walk's surveyed line is
+    off the true one by its own offset of ``shift_m`` metres (a survey error the walk shares)."""
+    walks = []
+    for row, y in enumerate(np.linspace(3.0, 27.0, 8)):
+        t = np.arange(0, 80001, 1000)
+        x = 2.0 + 36.0 * (1.0 - np.abs(1.0 - t / 40000.0))  # out and back
+        r = rssi_at(np.column_stack([x, np.full(t.size, y)]), rng, 4.0)
+        wifi = [(int(tm), f"ap{i}", float(v), int(tm)) for tm, rr in zip(t, r) for i, v in enumerate(rr)]
+        off = shift_m * np.array([np.cos(row * 2.4), np.sin(row * 2.4)])
+        z = np.zeros((0, 4))
+        wp = np.array([[0, 2.0, y], [40000, 38.0, y], [80000, 2.0, y]]) + np.r_[0.0, off][None, :]
+        walks.append(Walk(path=f"row{row}", acc=z, gyro=z, mag=z, rotvec=z, wifi=wifi, waypoints=wp))
+    return walks
+
+
+def test_walk_long_error_correlation_is_calibrated_on_the_survey(tmp_path):
+    rng = np.random.default_rng(5)
+    honest = build_fingerprints(long_survey_walks(rng, 0.0))
+    shifted = build_fingerprints(long_survey_walks(rng, 6.0))
+    # Even an honest survey's k-NN errors last a walk: an edge row's neighbours all lie on one
+    # side of it, and out and back passes the same places. A shared offset adds to that.
+    assert 0.0 < honest.walk_corr < 0.45
+    assert shifted.walk_corr > honest.walk_corr + 0.2
+    save_fingerprints(shifted, tmp_path / "fp.npz")
+    assert load_fingerprints(tmp_path / "fp.npz").walk_corr == shifted.walk_corr
+    # Walks too short for scans 40 s apart: nothing measured, the AR(1) discount alone.
+    assert build_fingerprints(survey_walks(rng)).walk_corr == 0.0

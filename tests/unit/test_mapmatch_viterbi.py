@@ -117,3 +117,15 @@ def test_unknown_start_survives_the_beam_and_smoothing_corrects_the_start():
     # The filtered (online) column at step 0 is still uniform: only smoothing corrects it.
     f = ViterbiFilter(g, prior, beam=25.0)
     assert np.allclose(np.exp(f.column()), 1.0 / g.n_vertices)
+
+
+def test_forward_filter_evidence_is_the_log_partition_over_paths():
+    from posefix.mapmatch.viterbi import ForwardFilter
+
+    for seed in range(3):
+        g, prior, trans, state = problem(seed)
+        f = ForwardFilter(g, prior, beam=None)
+        for t in range(trans.shape[0]):
+            f.step(trans[t], state[t])
+        scores = np.array([s for _, s, _ in enumerate_paths(g, prior, trans, state)])
+        assert np.isclose(f.log_evidence(), logsumexp(scores), rtol=1e-10)

@@ -114,3 +114,30 @@ def test_model_file_keeps_the_correlation_time(tmp_path):
     np.savez_compressed(tmp_path / "bad.npz", **z)
     with pytest.raises(ModelFormatError, match=r"bad\.npz:0: field sigmas: wifi_corr_s"):
         load_model(tmp_path / "bad.npz")
+
+
+def equicorrelated_information(n, rho):
+    """1ᵀ C⁻¹ 1 for n observations of unit variance, any two correlated ρ."""
+    c = np.full((n, n), rho) + np.eye(n) * (1.0 - rho)
+    return float(np.ones(n) @ np.linalg.solve(c, np.ones(n)))
+
+
+def test_walk_long_correlation_caps_the_information_of_a_walks_scans():
+    from posefix.mapmatch.features import capped_information
+
+    for rho in (0.1, 0.3, 0.7):
+        for n in (1, 2, 5, 40):
+            assert np.isclose(capped_information(n, rho), equicorrelated_information(n, rho), rtol=1e-9)
+        assert capped_information(1e6, rho) < 1.0 / rho  # never more than 1/ρ scans, however many
+    assert capped_information(7.0, 0.0) == 7.0 and capped_information(0.4, 0.5) == 0.4
+    # The tracker's shares: scans two minutes apart (AR(1) shares ≈ 1) add up to the capped
+    # information, online, so a long walk's WiFi never outweighs what its errors allow.
+    model = room_model()
+    tr = Tracker(model, start_xy_m=None, wifi_walk_corr=0.5)
+    for i in range(6):
+        tr.step(np.zeros(2), 1000 + 120_000 * i, wifi=SCAN)
+    got = sum(s for _, _, s in tr.shares)
+    ar = evidence_shares(1.0 + 120.0 * np.arange(6), WIFI_CORR_S).sum()
+    assert np.isclose(got, capped_information(ar, 0.5)) and got < 2.0
+    with pytest.raises(ValueError, match="wifi_walk_corr"):
+        Tracker(model, wifi_walk_corr=1.0)

@@ -28,7 +28,7 @@ from posefix.mapmatch.sensors import (Steps, Walk, WalkFormatError, detect_steps
                                       read_walk, steps_from_walk, wrap_angle)
 from posefix.mapmatch.suggest import Suggestions, suggest_for_run
 from posefix.mapmatch.tracker import Tracker, TrackResult, track_walk
-from posefix.mapmatch.viterbi import GaussianSummary, gaussian_summary
+from posefix.mapmatch.viterbi import GaussianSummary
 
 __all__ = [
     "FloorFormatError", "FloorReport", "GaussianSummary", "GeoRef", "Model", "TrackResult", "Tracker", "Walk",
@@ -67,7 +67,7 @@ def build_polygon_model(width_m: float, height_m: float, walkable: list, blocked
 
 def current_summary(tracker: Tracker) -> GaussianSummary:
     """The Gaussian summary (mean, 1σ ellipse) of the tracker's present belief."""
-    return gaussian_summary(tracker.p_xy_m, tracker.column(), min_sigma_m=tracker.model.graph.cell_m / np.sqrt(12.0))
+    return tracker.summary(tracker.column())
 
 
 def settled_steps(acc: np.ndarray, rotvec: np.ndarray, after_ms: float, until_ms: float,
@@ -90,9 +90,11 @@ def settled_steps(acc: np.ndarray, rotvec: np.ndarray, after_ms: float, until_ms
 
 def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step_em: bool = False,
                 weights: bool = True, progress: Callable[[], None] | None = None,
-                step_scale: bool = True, wifi_weight: bool = False) -> tuple[Model, dict]:
+                step_scale: bool = True, wifi_weight: bool = False, ellipse: bool = True) -> tuple[Model, dict]:
     """Learn the heading bias, then the step-length scale, then (optionally) γ by hard EM,
-    then the f1/f2 weights, and f3's when ``wifi_weight`` and at least three walks have
+    then the f1/f2 weights, then (``ellipse``) the scale that makes the reported ellipses
+    honest on these walks (:func:`posefix.mapmatch.learn.learn_ellipse_scale`),
+    and f3's when ``wifi_weight`` and at least three walks have
     WiFi scans: each training walk then gets f3 from a fingerprint map of the *other*
     training walks (leave-one-walk-out, so the weight is learned for a scan the map has
     not seen, as when tracking), from a uniform start (slow: about 2 min for 15 walks).
@@ -159,6 +161,13 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
         model = model.with_(weights=fit.weights)
         report["weights"] = {k: round(v, 3) for k, v in fit.weights.items()}
         report["log_likelihood"] = round(fit.log_likelihood, 2)
+    if ellipse:
+        from posefix.mapmatch.learn import learn_ellipse_scale
+
+        scale, n = learn_ellipse_scale(model, surveyed)
+        model = model.with_(ellipse_scale=scale)
+        report["ellipse_scale"] = round(scale, 3)
+        report["ellipse_waypoints"] = n
     tick()
     return model, report
 

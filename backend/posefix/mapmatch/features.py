@@ -55,6 +55,7 @@ __all__ = [
     "f_robust_position",
     "evidence_share",
     "evidence_shares",
+    "capped_information",
     "WIFI_CORR_S",
     "TRANSITION_FEATURES",
     "STATE_FEATURES",
@@ -120,6 +121,19 @@ def evidence_share(dt_s: float | None, tau_s: float) -> float:
         return 1.0
     rho = float(np.exp(-abs(float(dt_s)) / tau_s))
     return (1.0 - rho) / (1.0 + rho)
+
+
+def capped_information(n_eff: float, rho_walk: float) -> float:
+    """Information (in independent observations) of ``n_eff`` observations whose errors also
+    share a part that lasts the whole walk, with correlation ``rho_walk`` between any two:
+    ``n / (1 + (n - 1)·ρ)`` (the generalised-least-squares information 1ᵀC⁻¹1 of n equally
+    correlated observations) for n ≥ 1, n below 1. It never exceeds 1/ρ: however long a walk
+    is scanned, an error the whole walk shares (the phone, the body, a route the survey
+    did not cover) is not averaged away. ρ = 0: n."""
+    n = float(n_eff)
+    if rho_walk <= 0.0 or n <= 1.0:
+        return n
+    return n / (1.0 + (n - 1.0) * float(rho_walk))
 
 
 def evidence_shares(t_s: np.ndarray, tau_s: float) -> np.ndarray:

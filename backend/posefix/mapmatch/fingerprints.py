@@ -101,6 +101,8 @@ class FingerprintMap:
     scale_by_match: np.ndarray | None = None  # RMS dB distance (calibrate_covariance); None: cov_scale
     robust: bool = False  # track with f3's robust form (off: measured worse on site1, see docs)
     walk_id: np.ndarray | None = None  # (N,) which survey walk each fingerprint came from
+    t_s: np.ndarray | None = None  # (N,) when each fingerprint was scanned (s), for calibrate_walk_corr
+    walk_corr: float = 0.0  # f3 errors' walk-long correlation ρ (calibrate_walk_corr; Tracker caps f3 with it)
 
     def __post_init__(self):
         if self.method not in ("knn", "pathloss", "hybrid"):
@@ -295,7 +297,7 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
     or at prediction time; ``max_age_ms``, ``scan_time``: scan grouping
     (:func:`posefix.mapmatch.sensors.wifi_scans`); ``calibrate``: fit Σ's scale and the
     outlier rate (:func:`calibrate_covariance`) and f4's σ (:func:`calibrate_peak_sigma`); ``options``: other ``FingerprintMap`` fields."""
-    pos, scans, wid = [], [], []
+    pos, scans, wid, t_s = [], [], [], []
     for iw, w in enumerate(walks):
         wp = w.waypoints
         if wp.shape[0] < 2:
@@ -305,6 +307,7 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
                 pos.append([np.interp(t_ms, wp[:, 0], wp[:, 1]), np.interp(t_ms, wp[:, 0], wp[:, 2])])
                 scans.append(scan)
                 wid.append(iw)
+                t_s.append(t_ms / 1000.0)
     if not scans:
         raise ValueError("no WiFi scan between two waypoints in the given walks: nothing to build a map from")
     bssids = np.array(sorted({b for s in scans for b in s}))
@@ -315,10 +318,11 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
             r[i, col[b]] = v
     fp = FingerprintMap(bssids=bssids, p_xy_m=np.asarray(pos, dtype=float), rssi_dbm=r, method=method,
                         vertices_xy_m=vertices_xy_m, max_age_ms=max_age_ms, scan_time=scan_time,
-                        walk_id=np.asarray(wid, dtype=np.int32), **options)
+                        walk_id=np.asarray(wid, dtype=np.int32), t_s=np.asarray(t_s, dtype=float), **options)
     if calibrate:
         fp.cov_scale, fp.outlier_frac, fp.scale_match_db, fp.scale_by_match = calibrate_covariance(fp)
         fp.peak_sigma_m = calibrate_peak_sigma(fp)
+        fp.walk_corr = calibrate_walk_corr(fp)
     return fp
 
 
@@ -392,6 +396,56 @@ def calibrate_covariance(fp: FingerprintMap, folds: int = 5, vertices_xy_m: np.n
 RAYLEIGH_MEDIAN = np.sqrt(2.0 * np.log(2.0))  # median length of a 2-D N(0, σ² I) error, in σ
 
 
+# Walk-long correlation: scans at least this far apart (2τ of features.WIFI_CORR_S), where the
+# AR(1) part of the error has fallen to e⁻² (14 %), measure the part the whole walk shares.
+WALK_CORR_MIN_LAG_S = 40.0
+MIN_PAIRS_TO_CALIBRATE = 20
+
+
+def calibrate_walk_corr(fp: FingerprintMap, folds: int = 5, min_lag_s: float = WALK_CORR_MIN_LAG_S,
+                        min_pairs: int = MIN_PAIRS_TO_CALIBRATE) -> float:
+    """Correlation ρ of f3's errors between scans of one walk far apart in time, on the survey.
+
+    A walk's WiFi fixes share an error that does not decay while it walks (the phone, how it
+    is held, a route the survey covers only from afar), beside the part that changes with
+    the place (features.evidence_share's AR(1)). The survey walks are split into ``folds``
+    groups as in :func:`calibrate_covariance`; each held-out scan's error is whitened by its
+    predicted Σ (u = L⁻¹(μ - p), Σ = L Lᵀ, so the figure is on the scale the tracker weighs
+    it), and over pairs of one walk at least ``min_lag_s`` apart
+    ``ρ = Σ u_i·u_j / Σ ½(|u_i|² + |u_j|²)`` (clipped to [0, 0.9]). 0 when there are fewer
+    than ``min_pairs`` pairs (no times, one walk, short walks): the AR(1) discount alone.
+    """
+    if fp.walk_id is None or fp.t_s is None or np.unique(fp.walk_id).size < 2:
+        return 0.0
+    ids = np.unique(fp.walk_id)
+    group = {w: i % folds for i, w in enumerate(ids)}
+    g = np.array([group[w] for w in fp.walk_id.tolist()])
+    names = fp.bssids.tolist()
+    u = np.full((fp.p_xy_m.shape[0], 2), np.nan)
+    for k in np.unique(g):
+        tr = g != k
+        sub = FingerprintMap(bssids=fp.bssids, p_xy_m=fp.p_xy_m[tr], rssi_dbm=fp.rssi_dbm[tr], k=fp.k,
+                             sigma0_m=fp.sigma0_m, min_common=fp.min_common, similarity=fp.similarity,
+                             cov_scale=fp.cov_scale, scale_match_db=fp.scale_match_db,
+                             scale_by_match=fp.scale_by_match)
+        for i in np.nonzero(~tr)[0]:
+            pred = sub._predict_knn(_row_scan(names, fp.rssi_dbm[i]))
+            if pred is not None:
+                u[i] = np.linalg.solve(np.linalg.cholesky(pred[1]), pred[0] - fp.p_xy_m[i])
+    num = den = 0.0
+    pairs = 0
+    for w in ids:
+        rows = np.nonzero((fp.walk_id == w) & np.isfinite(u[:, 0]))[0]
+        far = np.abs(fp.t_s[rows][:, None] - fp.t_s[rows][None, :]) >= min_lag_s
+        i, j = np.nonzero(np.triu(far, 1))
+        num += float(np.sum(u[rows[i]] * u[rows[j]]))
+        den += float(np.sum(0.5 * (np.sum(u[rows[i]] ** 2, axis=1) + np.sum(u[rows[j]] ** 2, axis=1))))
+        pairs += i.size
+    if pairs < min_pairs or den <= 0.0:
+        return 0.0
+    return float(np.clip(num / den, 0.0, 0.9))
+
+
 def _row_scan(bssids: list[str], row: np.ndarray) -> dict[str, float]:
     """One fingerprint row (A,) dBm back to a scan ``{bssid: dBm}`` of the access points heard."""
     heard = np.nonzero(row > MISSING_DBM)[0]
@@ -446,8 +500,9 @@ def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5,
 def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
     """Write ``.npz`` (members ``format``, ``version``, ``bssids``, ``p_xy_m``, ``rssi_dbm`` and the
     calibration: ``cov_scale``, ``outlier_frac``, ``peak_sigma_m`` (absent when f4's σ is not
-    calibrated), ``scale_match_db``, ``scale_by_match``); returns bytes."""
+    calibrated), ``scale_match_db``, ``scale_by_match``, ``walk_corr``); returns bytes."""
     extra = {} if fp.peak_sigma_m is None else {"peak_sigma_m": np.array(fp.peak_sigma_m)}
+    extra["walk_corr"] = np.array(fp.walk_corr)
     with open(path, "wb") as fh:
         np.savez_compressed(fh, format=np.array("posefix-fingerprints"), version=np.array(2, dtype=np.int32),
                             bssids=fp.bssids.astype(str), p_xy_m=fp.p_xy_m, rssi_dbm=fp.rssi_dbm,
@@ -477,6 +532,11 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
             if not (np.isfinite(sig) and sig > 0.0):
                 raise ValueError(f"{path}:0: field peak_sigma_m: must be a positive number of metres, got {sig}")
             table["peak_sigma_m"] = sig
+        if "walk_corr" in z.files:  # files before it: 0, the AR(1) discount alone
+            rho = float(z["walk_corr"])
+            if not (np.isfinite(rho) and 0.0 <= rho < 1.0):
+                raise ValueError(f"{path}:0: field walk_corr: must be a number in [0, 1), got {rho}")
+            table["walk_corr"] = rho
         if "scale_match_db" in z.files and z["scale_match_db"].size:
             if z["scale_match_db"].shape != z["scale_by_match"].shape:
                 raise ValueError(f"{path}:0: field scale_by_match: shape differs from scale_match_db")

@@ -46,6 +46,7 @@ from posefix.mapmatch.viterbi import forward_backward, viterbi
 
 __all__ = [
     "learn_step_scale",
+    "learn_ellipse_scale",
     "WalkFeatures",
     "walk_features",
     "clamp_states",
@@ -315,3 +316,35 @@ def learn_step_scale(walks: list[Walk], step_model: StepModel, heading: str = "r
         raise ValueError(f"step-length scale {s:.3f} (surveyed / dead-reckoned distance) is outside "
                          f"{bounds}: check the waypoints' units and the step detection")
     return replace(step_model, height_m=step_model.height_m * s, gamma_m=step_model.gamma_m * s)
+
+
+ELLIPSE_SCALE_BOUNDS = (0.25, 25.0)  # σ × 0.5 .. × 5: outside, the model or the data is broken
+
+
+def learn_ellipse_scale(model, walks: list[Walk], heading: str = "rotation_vector") -> tuple[float, int]:
+    """Covariance scale s that makes the reported 2σ ellipses honest on surveyed walks, and the
+    number of waypoints it was measured on.
+
+    Each walk is tracked from its first waypoint as a user would (:func:`track_walk`, the
+    walk's own calibration included) and the squared Mahalanobis distance m² of every later
+    waypoint under the reported ellipse is measured (:func:`posefix.mapmatch.evaluate.mahalanobis2_at_waypoints`).
+    A calibrated 2-D Gaussian has 86.5 % of m² within 4, so ``s = q₈₆.₅(m²) / 4`` (relative to
+    the model's present scale; the quantile the target is set on, not the median: the errors
+    are heavier-tailed than a Gaussian). Why the posterior needs it: the CRF counts each step's
+    error as independent, but a walker's stride and heading errors persist over many steps,
+    and the survey's own waypoints err by a metre or so. Without two waypoints anywhere: 1.
+    """
+    from posefix.mapmatch.evaluate import CHI2_2_COVER_2SIGMA, mahalanobis2_at_waypoints
+    from posefix.mapmatch.tracker import track_walk
+
+    m2 = []
+    for w in walks:
+        if w.waypoints.shape[0] < 2:
+            continue
+        res = track_walk(model, w, start_xy_m=tuple(w.waypoints[0, 1:3]), heading=heading)
+        m2.append(mahalanobis2_at_waypoints(w.waypoints, res, skip_first=True))
+    m = np.concatenate(m2) if m2 else np.zeros(0)
+    if m.size == 0:
+        return float(model.ellipse_scale), 0
+    s = float(np.quantile(m, CHI2_2_COVER_2SIGMA)) / 4.0
+    return float(model.ellipse_scale * np.clip(s, *ELLIPSE_SCALE_BOUNDS)), int(m.size)

@@ -23,6 +23,8 @@ member             dtype      meaning
 ``sigmas``         float64    ``[len_m, heading_rad, window_steps, min_span_m, wifi_corr_s]``
                               (files with the first four only read as wifi_corr_s = 20 s)
 ``beam``           float64    pruning width in nats (``inf`` = none)
+``ellipse_scale``  float64    covariance scale of the reported ellipses, calibrated on the
+                              training walks (optional; absent = 1)
 =================  =========  ===========================================================
 
 A device rebuilds the dense ``(V, K)`` transition tables from ``ij`` + ``trans_mask`` in
@@ -66,6 +68,7 @@ class Model:
     weights: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_WEIGHTS))
     sigmas: FeatureSigmas = field(default_factory=FeatureSigmas)
     beam: float | None = DEFAULT_BEAM
+    ellipse_scale: float = 1.0  # learn.learn_ellipse_scale: reported covariance × this
 
     def with_(self, **kw) -> "Model":
         return replace(self, **kw)
@@ -90,6 +93,7 @@ def _arrays(model: Model) -> dict[str, np.ndarray]:
         "weights": np.array([model.weights[n] for n in FEATURE_NAMES]),
         "sigmas": np.array([sg.len_m, sg.heading_rad, sg.window_steps, sg.min_span_m, sg.wifi_corr_s]),
         "beam": np.array(np.inf if model.beam is None else model.beam),
+        "ellipse_scale": np.array(float(model.ellipse_scale)),
     }
 
 
@@ -141,10 +145,13 @@ def load_model(path: str | Path) -> Model:
         if not (np.isfinite(tau) and tau >= 0.0):
             raise ModelFormatError(p, "sigmas", f"wifi_corr_s (5th entry) must be a number of seconds >= 0, got {tau}")
         beam = float(z["beam"])
+        ell = float(z["ellipse_scale"]) if "ellipse_scale" in z.files else 1.0
+        if not (np.isfinite(ell) and ell > 0.0):
+            raise ModelFormatError(p, "ellipse_scale", f"must be a positive number, got {ell}")
     return Model(graph=graph,
                  step_model=StepModel(height_m=h, alpha_s=a, beta=b, gamma_m=gm, heading_bias_rad=hb,
                                       min_len_m=lo, max_len_m=hi),
                  weights=dict(zip(FEATURE_NAMES, w)),
                  sigmas=FeatureSigmas(len_m=s[0], heading_rad=s[1], window_steps=int(s[2]), min_span_m=s[3],
                                       wifi_corr_s=float(tau)),
-                 beam=None if not np.isfinite(beam) else beam)
+                 beam=None if not np.isfinite(beam) else beam, ellipse_scale=ell)

@@ -30,7 +30,8 @@ from typing import Callable
 
 import numpy as np
 
-from posefix.mapmatch.features import FeatureSigmas, evidence_share, f_gaussian_position, f_robust_position, f_step
+from posefix.mapmatch.features import (FeatureSigmas, capped_information, evidence_share, f_gaussian_position,
+                                       f_robust_position, f_step)
 from posefix.mapmatch.modes import posterior_modes
 from posefix.mapmatch.viterbi import ForwardFilter, GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
 
@@ -128,7 +129,8 @@ class Tracker:
 
     def __init__(self, model, start_xy_m: tuple[float, float] | None = None, t0_ms: int = 0,
                  start_sigma_m: float = 1.0, collapse_sigma_m: float = 0.0, start_wifi: tuple | None = None,
-                 filtered: bool = True, wifi_corr_s: float | None = None, start_wifi_t_ms: int | None = None):
+                 filtered: bool = True, wifi_corr_s: float | None = None, start_wifi_t_ms: int | None = None,
+                 wifi_walk_corr: float = 0.0):
         self.model = model
         g = model.graph
         self.graph = g
@@ -141,6 +143,10 @@ class Tracker:
         if not (np.isfinite(tau) and tau >= 0.0):
             raise ValueError(f"wifi_corr_s must be a number of seconds >= 0, got {wifi_corr_s}")
         self.wifi_corr_s = tau
+        if not (np.isfinite(wifi_walk_corr) and 0.0 <= wifi_walk_corr < 1.0):
+            raise ValueError(f"wifi_walk_corr must be in [0, 1), got {wifi_walk_corr}")
+        self.wifi_walk_corr = float(wifi_walk_corr)
+        self._n_eff: dict[str, float] = {"f3": 0.0, "f4": 0.0}  # AR(1) shares summed so far
         # Time (ms) of the last observation of each WiFi feature, for evidence_share.
         self._last_obs_ms: dict[str, int | None] = {"f3": None, "f4": None}
         self.shares: list[tuple[str, int, float]] = []  # (feature, t_ms, share) as applied
@@ -151,6 +157,7 @@ class Tracker:
             # scan, so the next one's share is counted from it.
             prior = wifi_score(self.p_xy_m, start_wifi, g.cell_m)
             self._last_obs_ms["f3"] = int(t0_ms if start_wifi_t_ms is None else start_wifi_t_ms)
+            self._n_eff["f3"] = 1.0
         self.filter = ViterbiFilter(g, prior, beam=model.beam)
         self.forward = ForwardFilter(g, prior, beam=model.beam) if filtered else None
         c = g.cell_m
@@ -165,6 +172,7 @@ class Tracker:
         self.state_rows: list[np.ndarray | None] = []
         self.t_ms: list[int] = [int(t0_ms)]
         self._cum_hist = [np.zeros(2)]
+        self._trans_log_norm = 0.0  # Σ_t log Σ_k exp(trans[t, k]), for log_evidence
 
     def _increment(self, cum: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         new = cum + step
@@ -204,10 +212,17 @@ class Tracker:
 
     def evidence_share(self, feature: str, t_ms: int) -> float:
         """Share of a WiFi observation's evidence (f3 or f4) measured at ``t_ms`` that is new
-        given the previous one of the same feature (1 for the first), and remember its time."""
+        given the ones before it, and remember its time: its AR(1) share given the previous
+        one (1 for the first), then, with ``wifi_walk_corr`` ρ, what it adds to the capped
+        information of all of them (:func:`posefix.mapmatch.features.capped_information`)."""
         last = self._last_obs_ms[feature]
         share = evidence_share(None if last is None else (int(t_ms) - last) / 1000.0, self.wifi_corr_s)
         self._last_obs_ms[feature] = int(t_ms)
+        n0 = self._n_eff[feature]
+        self._n_eff[feature] = n0 + share
+        if self.wifi_walk_corr > 0.0:
+            share = (capped_information(n0 + share, self.wifi_walk_corr)
+                     - capped_information(n0, self.wifi_walk_corr))
         self.shares.append((feature, int(t_ms), share))
         return share
 
@@ -237,6 +252,8 @@ class Tracker:
         state = self.state_scores(wifi, peak, t_ms if wifi_t_ms is None else wifi_t_ms,
                                   t_ms if peak_t_ms is None else peak_t_ms)
         self.filter.step(trans, state)
+        top = float(np.max(trans))
+        self._trans_log_norm += top + float(np.log(np.sum(np.exp(trans - top))))
         self.trans_rows.append(trans)
         self.state_rows.append(state)
         self._steps.append(np.asarray(step_xy_m, dtype=float))
@@ -247,13 +264,19 @@ class Tracker:
         if not summarise and self.collapse_sigma_m <= 0:
             return TrackPoint(t_ms=int(t_ms), vertex=int(np.argmax(self.filter.delta)), summary=None)
         col = self.column()
-        summ = gaussian_summary(self.p_xy_m, col, min_sigma_m=self._c / np.sqrt(12.0))
+        summ = self.summary(col)
         if self.collapse_sigma_m > 0 and summ.sigma_major_m < self.collapse_sigma_m:
             g = f_gaussian_position(self.p_xy_m, summ.mean_xy_m, summ.cov_m2)
             self.filter.delta = np.where(np.isfinite(self.filter.delta) & (g > -4.5), g, -np.inf)
             if self.forward is not None:
                 self.forward.alpha = np.where(np.isfinite(self.forward.alpha) & (g > -4.5), g, -np.inf)
         return TrackPoint(t_ms=int(t_ms), vertex=int(np.argmax(self.filter.delta)), summary=summ)
+
+    def summary(self, logp: np.ndarray) -> GaussianSummary:
+        """Gaussian summary of a distribution over the vertices, with the cell's own spread
+        and the model's calibrated ellipse scale (:attr:`Model.ellipse_scale`)."""
+        return gaussian_summary(self.p_xy_m, logp, min_sigma_m=self._c / np.sqrt(12.0),
+                                cov_scale=getattr(self.model, "ellipse_scale", 1.0))
 
     def column(self) -> np.ndarray:
         """The live distribution (V,) log p: the forward filter's marginal p(y_t | steps so far),
@@ -264,6 +287,17 @@ class Tracker:
         """Offline answer so far: the most likely vertex sequence y_0..y_t."""
         return self.filter.best_path()
 
+    def log_evidence(self) -> float:
+        """How well the map (and WiFi) explain the steps so far: log Σ over paths of the prior
+        times, per step, the move's probability ``exp(trans[k]) / Σ_k' exp(trans[k'])`` (each
+        step's scores normalised over all offsets, as on an open floor, so a wall takes
+        probability away) times the state scores. Steps that agree with the walls score
+        higher; comparable between runs of the same walk and prior with other step vectors
+        (:func:`posefix.mapmatch.calibrate.select_step_correction`). Needs ``filtered``."""
+        if self.forward is None:
+            raise ValueError("log_evidence needs the forward filter (Tracker(filtered=True))")
+        return self.forward.log_evidence() - self._trans_log_norm
+
 
 def smooth(tracker: Tracker, with_modes: bool = False):
     """Offline smoothing of everything a tracker has seen: forward-backward marginals
@@ -273,21 +307,21 @@ def smooth(tracker: Tracker, with_modes: bool = False):
     g = tracker.graph
     fb = forward_backward(g, tracker.log_prior, np.asarray(tracker.trans_rows).reshape(-1, g.offsets.shape[0]),
                           tracker.state_rows, beam=tracker.model.beam)
-    floor = g.cell_m / np.sqrt(12.0)
     sums, modes = [], []
     for row in fb.gamma:
         with np.errstate(divide="ignore"):
-            sums.append(gaussian_summary(tracker.p_xy_m, np.log(row), min_sigma_m=floor))
+            sums.append(tracker.summary(np.log(row)))
         if with_modes:
             modes.append(posterior_modes(tracker.p_xy_m, row))
     means = np.array([s.mean_xy_m for s in sums])
     return (means, sums, modes) if with_modes else (means, sums)
 
 
-def _walk_observations(model, walk, steps, start_xy_m, fingerprints) -> tuple[dict, dict, tuple | None, int | None]:
+def _walk_observations(model, walk, steps, start_xy_m, fingerprints) -> tuple[dict, dict, tuple | None, int | None, float]:
     """WiFi fixes and RSSI peaks of a walk attached to its steps: ``{step: (observation, t_ms
-    measured)}`` each (two nearest the same step: the later is kept), and the start prior's
-    scan (a scan before the first step, unknown start only) with its time."""
+    measured)}`` each (two nearest the same step: the later is kept), the start prior's
+    scan (a scan before the first step, unknown start only) with its time, and the
+    fingerprint map's walk-long error correlation (:attr:`FingerprintMap.walk_corr`; 0 without)."""
     wifi_at: dict[int, tuple] = {}
     peak_at: dict[int, tuple] = {}
     start_wifi, start_wifi_t = None, None
@@ -300,7 +334,7 @@ def _walk_observations(model, walk, steps, start_xy_m, fingerprints) -> tuple[di
             wifi_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = ((mean, cov, eps), int(t_ms))
         for t_ms, xy, sig in fingerprints.peaks_in_walk(walk):
             peak_at[int(np.argmin(np.abs(steps.t_ms - t_ms)))] = ((xy, sig), int(t_ms))
-    return wifi_at, peak_at, start_wifi, start_wifi_t
+    return wifi_at, peak_at, start_wifi, start_wifi_t, float(getattr(fingerprints, "walk_corr", 0.0) or 0.0)
 
 
 def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, fingerprints=None,
@@ -346,15 +380,28 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
                    offline_time_per_step_s=first.offline_time_per_step_s + extra_s, step_correction=a)
 
 
+def walk_log_evidence(model, walk, steps, vec, obs, start_xy_m, wifi_corr_s=None) -> float:
+    """:meth:`Tracker.log_evidence` of a whole walk tracked with step vectors ``vec`` (T, 2):
+    one forward pass without summaries (``obs`` from :func:`_walk_observations`)."""
+    wifi_at, peak_at, start_wifi, start_wifi_t, walk_corr = obs
+    tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=int(walk.acc[0, 0]), start_wifi=start_wifi,
+                 wifi_corr_s=wifi_corr_s, start_wifi_t_ms=start_wifi_t, wifi_walk_corr=walk_corr)
+    for i in range(len(steps)):
+        wifi, wifi_t = wifi_at.get(i, (None, None))
+        peak, peak_t = peak_at.get(i, (None, None))
+        tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi, peak=peak, summarise=False, wifi_t_ms=wifi_t, peak_t_ms=peak_t)
+    return tr.log_evidence()
+
+
 def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s) -> TrackResult:
     """One run of the tracker over a walk's step vectors ``vec`` (see :func:`track_walk`)."""
     import time
 
-    wifi_at, peak_at, start_wifi, start_wifi_t = obs
+    wifi_at, peak_at, start_wifi, start_wifi_t, walk_corr = obs
     t0 = int(walk.acc[0, 0])
     tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0, start_wifi=start_wifi, wifi_corr_s=wifi_corr_s,
-                 start_wifi_t_ms=start_wifi_t)
-    pts = [gaussian_summary(tr.p_xy_m, tr.column(), min_sigma_m=model.graph.cell_m / np.sqrt(12.0))]
+                 start_wifi_t_ms=start_wifi_t, wifi_walk_corr=walk_corr)
+    pts = [tr.summary(tr.column())]
     online = [pts[0].mean_xy_m]
     cols = [np.exp(tr.column())] if estimate == "viterbi" else None
     tic = time.process_time()  # CPU time of this process: "one core", whatever else runs

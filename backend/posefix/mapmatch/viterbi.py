@@ -37,6 +37,7 @@ __all__ = [
 ]
 
 DEFAULT_BEAM = 25.0
+DEAD_END_NATS = 25.0  # evidence charged for a step no path survives when there is no beam
 NEG_INF = -np.inf
 
 
@@ -57,11 +58,13 @@ class GaussianSummary:
 
 
 def gaussian_summary(p_xy_m: np.ndarray, logp: np.ndarray, min_sigma_m: float = 0.0,
-                     cut_nats: float = 20.0) -> GaussianSummary:
+                     cut_nats: float = 20.0, cov_scale: float = 1.0) -> GaussianSummary:
     """Moment-match normalised log-weights ``logp`` (V,) over positions (V, 2).
 
     ``min_sigma_m`` adds an isotropic floor (e.g. the cell's own spread c/√12). Entries
     more than ``cut_nats`` below the maximum (weight < 2e-9 each) are left out for speed.
+    ``cov_scale`` multiplies the covariance (the model's calibrated ellipse scale,
+    :func:`posefix.mapmatch.learn.learn_ellipse_scale`); the mean is unchanged.
     """
     top = float(np.max(logp))
     sel = logp > top - cut_nats
@@ -78,7 +81,7 @@ def gaussian_summary(p_xy_m: np.ndarray, logp: np.ndarray, min_sigma_m: float = 
     # the strided columns: OpenBLAS threads a ddot of over 10 000 elements, and on a busy
     # machine waking the threads cost 10-20 ms a call.)
     d = p - mean
-    cov = (d * w[:, None]).T @ d + np.eye(2) * min_sigma_m**2
+    cov = ((d * w[:, None]).T @ d + np.eye(2) * min_sigma_m**2) * cov_scale
     evals, evecs = np.linalg.eigh(cov)
     major = evecs[:, 1]
     return GaussianSummary(mean_xy_m=mean, cov_m2=cov,
@@ -211,6 +214,8 @@ class ForwardFilter:
         self.graph = graph
         self.beam = beam
         self.alpha = _prune(np.asarray(log_prior, dtype=float), beam)
+        # log of what has been divided out of α so far: log Z = log_scale + log Σ exp(α).
+        self.log_scale = 0.0
 
     def step(self, trans_k: np.ndarray, state_v: np.ndarray | None = None) -> None:
         g = self.graph
@@ -239,13 +244,22 @@ class ForwardFilter:
         if state_v is not None:
             row = row + state_v
         if not np.any(np.isfinite(row)):
-            return  # every path hit a wall: keep the belief (as ViterbiFilter does)
+            # Every path hit a wall: keep the belief (as ViterbiFilter does), and charge the
+            # evidence what falling off the beam would cost (the step was impossible).
+            self.log_scale -= DEAD_END_NATS if self.beam is None else self.beam
+            return
         top = float(np.max(row))
         self.alpha = _prune(row - top, self.beam)  # renormalised so it never under/overflows
+        self.log_scale += top
 
     def column(self) -> np.ndarray:
         """Normalised log filtered marginal (V,), -inf off the beam."""
         return _log_normalised(self.alpha)
+
+    def log_evidence(self) -> float:
+        """log Z_t = log Σ_paths exp(prior + Σ scores) over the steps so far (within the beam)."""
+        top = float(np.max(self.alpha))
+        return self.log_scale + top + float(np.log(np.sum(np.exp(self.alpha - top))))
 
 
 def viterbi(graph: GridGraph, log_prior: np.ndarray, trans: np.ndarray,

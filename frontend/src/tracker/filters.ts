@@ -387,7 +387,7 @@ export function stepFilters(viterbi: ViterbiFilter, forward: ForwardFilter, tran
  * Moment-matched Gaussian of a distribution over the graph's vertices, from weights on the
  * live vertices (any scale; entries under e^{−20} of the largest are left out).
  */
-export function gaussianSummary(g: Graph, w: Float64Array, live: Int32Array, minSigma: number, cutNats = 20): Summary {
+export function gaussianSummary(g: Graph, w: Float64Array, live: Int32Array, minSigma: number, cutNats = 20, covScale = 1): Summary {
   const m = live.length;
   let top = 0;
   for (let i = 0; i < m; i++) if (w[live[i]] > top) top = w[live[i]];
@@ -418,8 +418,10 @@ export function gaussianSummary(g: Graph, w: Float64Array, live: Int32Array, min
     cxy += dx * x * dy;
     cyy += dy * x * dy;
   }
-  cxx += minSigma * minSigma;
-  cyy += minSigma * minSigma;
+  // The floor, then the model's calibrated ellipse scale (posefix.mapmatch.learn.learn_ellipse_scale).
+  cxx = (cxx + minSigma * minSigma) * covScale;
+  cyy = (cyy + minSigma * minSigma) * covScale;
+  cxy *= covScale;
   const mean = (cxx + cyy) / 2;
   const r = Math.sqrt(((cxx - cyy) / 2) ** 2 + cxy * cxy);
   const angle = ((0.5 * Math.atan2(2 * cxy, cxx - cyy) * 180) / Math.PI + 180) % 180;

@@ -35,6 +35,8 @@ export interface FingerprintMap {
   peakDbm: number;
   peakSigma: number | null;
   covScale: number;
+  /** f3 errors' walk-long correlation ρ (member `walk_corr`; 0 when absent): caps a walk's WiFi information at 1/ρ scans. */
+  walkCorr: number;
   scaleDb: Float64Array | null;
   scaleBy: Float64Array | null;
   peakXY: Map<string, [number, number]>;
@@ -65,12 +67,14 @@ export async function loadFingerprints(bytes: Uint8Array, file = "fingerprints.n
     peakSigma = scalar(z, "peak_sigma_m", NaN);
     if (!(Number.isFinite(peakSigma) && peakSigma > 0)) throw new NpzFormatError(file, "peak_sigma_m", `must be a positive number of metres, got ${peakSigma}`);
   }
+  const walkCorr = scalar(z, "walk_corr", 0);
+  if (!(Number.isFinite(walkCorr) && walkCorr >= 0 && walkCorr < 1)) throw new NpzFormatError(file, "walk_corr", `must be a number in [0, 1), got ${walkCorr}`);
   const sd = z.get("scale_match_db")?.data as Float64Array | undefined;
   const sb = z.get("scale_by_match")?.data as Float64Array | undefined;
   if (sd && sd.length && (!sb || sb.length !== sd.length)) throw new NpzFormatError(file, "scale_by_match", "shape differs from scale_match_db");
   const fp: FingerprintMap = {
     bssids, col: new Map(bssids.map((b, i) => [b, i])), px, py, rssi, n, a, k: 5, sigma0_m: 2, minCommon: 3, peakDbm: -55, peakSigma,
-    covScale: scalar(z, "cov_scale", 1), scaleDb: sd && sd.length ? Float64Array.from(sd) : null, scaleBy: sd && sd.length ? Float64Array.from(sb!) : null,
+    covScale: scalar(z, "cov_scale", 1), walkCorr, scaleDb: sd && sd.length ? Float64Array.from(sd) : null, scaleBy: sd && sd.length ? Float64Array.from(sb!) : null,
     peakXY: new Map(),
   };
   for (let j = 0; j < a; j++) {

@@ -62,6 +62,8 @@ export interface TrackerModel {
   weights: { f1: number; f2: number; f3: number; f4: number };
   sigmas: Sigmas;
   beam: number | null;
+  /** Covariance scale of the reported ellipses (optional member `ellipse_scale`; 1 when absent). */
+  ellipseScale: number;
   bytes: number;
 }
 
@@ -140,6 +142,8 @@ export async function loadModel(bytes: Uint8Array, file = "model.npz"): Promise<
   const tau = s.length === 5 ? s[4] : DEFAULT_WIFI_CORR_S;
   if (!(Number.isFinite(tau) && tau >= 0)) throw new NpzFormatError(file, "sigmas", `wifi_corr_s (5th entry) must be a number of seconds >= 0, got ${tau}`);
   const beam = numbers(z, file, "beam")[0];
+  const ell = z.has("ellipse_scale") ? numbers(z, file, "ellipse_scale")[0] : 1;
+  if (!(Number.isFinite(ell) && ell > 0)) throw new NpzFormatError(file, "ellipse_scale", `must be a positive number, got ${ell}`);
   return {
     graph: { cell_m: cell, x0_m: x0, y0_m: y0, rows, cols, n, k, px, py, offX, offY, succ, predV },
     georef: geo.length === 4 ? [geo[0], geo[1], geo[2], geo[3]] : null,
@@ -147,6 +151,7 @@ export async function loadModel(bytes: Uint8Array, file = "model.npz"): Promise<
     weights: { f1: w[0], f2: w[1], f3: w[2], f4: w[3] },
     sigmas: { len_m: s[0], heading_rad: s[1], window_steps: Math.trunc(s[2]), min_span_m: s[3], wifi_corr_s: tau },
     beam: Number.isFinite(beam) ? beam : null,
+    ellipseScale: ell,
     bytes: bytes.length,
   };
 }

@@ -39,6 +39,8 @@ export interface TrackerOptions {
   startWifi?: WifiFix | null;
   startWifiT_ms?: number | null;
   wifiCorr_s?: number | null;
+  /** Walk-long correlation ρ of WiFi errors (the fingerprint map's walkCorr); 0: the AR(1) discount alone. */
+  wifiWalkCorr?: number;
 }
 
 /** ρ-discounted share of an observation's evidence (1 for the first, or with τ = 0). */
@@ -46,6 +48,12 @@ export function evidenceShare(dt_s: number | null, tau_s: number): number {
   if (dt_s === null || tau_s <= 0) return 1;
   const rho = Math.exp(-Math.abs(dt_s) / tau_s);
   return (1 - rho) / (1 + rho);
+}
+
+/** Information (in independent observations) of n whose errors any two share ρ: n / (1 + (n − 1)ρ), n below 1 (features.capped_information). */
+export function cappedInformation(n: number, rho: number): number {
+  if (rho <= 0 || n <= 1) return n;
+  return n / (1 + (n - 1) * rho);
 }
 
 /** f3/f4 at every vertex: −½ (p − μ)ᵀ Σ⁻¹ (p − μ). */
@@ -104,6 +112,8 @@ export class Tracker {
   readonly forward: ForwardFilter;
   readonly tau_s: number;
   private lastObs: { f3: number | null; f4: number | null } = { f3: null, f4: null };
+  private nEff: { f3: number; f4: number } = { f3: 0, f4: 0 };
+  readonly walkCorr: number;
   private cum: [number, number] = [0, 0];
   private cum2: [number, number] = [0, 0];
   private cumHist: [number, number][] = [[0, 0]];
@@ -118,11 +128,14 @@ export class Tracker {
     const tau = opts.wifiCorr_s ?? model.sigmas.wifi_corr_s;
     if (!(Number.isFinite(tau) && tau >= 0)) throw new Error(`wifi_corr_s must be a number of seconds >= 0, got ${tau}`);
     this.tau_s = tau;
+    this.walkCorr = opts.wifiWalkCorr ?? 0;
+    if (!(Number.isFinite(this.walkCorr) && this.walkCorr >= 0 && this.walkCorr < 1)) throw new Error(`wifiWalkCorr must be in [0, 1), got ${this.walkCorr}`);
     const start = opts.start ?? null;
     let prior = startLogPrior(model, start, opts.startSigma_m ?? 1);
     if (!start && opts.startWifi) {
       prior = gaussianPosition(model.graph.px, model.graph.py, opts.startWifi.mean, opts.startWifi.cov);
       this.lastObs.f3 = Math.trunc(opts.startWifiT_ms ?? opts.t0_ms ?? 0);
+      this.nEff.f3 = 1;
     }
     this.viterbi = new ViterbiFilter(model.graph, prior, model.beam, Math.max(model.sigmas.window_steps, 1));
     this.forward = new ForwardFilter(model.graph, prior, model.beam);
@@ -182,7 +195,9 @@ export class Tracker {
     const last = this.lastObs[kind];
     const s = evidenceShare(last === null ? null : (Math.trunc(t_ms) - last) / 1000, this.tau_s);
     this.lastObs[kind] = Math.trunc(t_ms);
-    return s;
+    const n0 = this.nEff[kind];
+    this.nEff[kind] = n0 + s;
+    return this.walkCorr > 0 ? cappedInformation(n0 + s, this.walkCorr) - cappedInformation(n0, this.walkCorr) : s;
   }
 
   stateScores(wifi: WifiFix | null, wifiT: number, peak: Peak | null, peakT: number): Float64Array | null {
@@ -212,7 +227,7 @@ export class Tracker {
 
   /** Gaussian summary of the live (filtered) distribution. */
   summary(): Summary {
-    return gaussianSummary(this.model.graph, this.forward.lin, this.forward.live, this.minSigma);
+    return gaussianSummary(this.model.graph, this.forward.lin, this.forward.live, this.minSigma, 20, this.model.ellipseScale);
   }
 
   /** The live distribution's modes and whether it has converged (posefix.mapmatch.modes). */
@@ -268,7 +283,7 @@ export function trackWalk(model: TrackerModel, walk: Walk, start: [number, numbe
       for (const pk of scanPeaks(fp, scans)) peakAt.set(nearest(pk.t_ms), [{ xy: fp.peakXY.get(pk.bssid)!, sigma_m: fp.peakSigma }, pk.t_ms]);
     }
   }
-  const tr = new Tracker(model, { start, t0_ms: t0, startWifi, startWifiT_ms: startWifiT });
+  const tr = new Tracker(model, { start, t0_ms: t0, startWifi, startWifiT_ms: startWifiT, wifiWalkCorr: fp?.walkCorr ?? 0 });
   const out: WalkRun = {
     t_ms: new Float64Array(n + 1), x: new Float64Array(n + 1), y: new Float64Array(n + 1),
     sigma_major_m: new Float64Array(n + 1), sigma_minor_m: new Float64Array(n + 1), angle_deg: new Float64Array(n + 1),
