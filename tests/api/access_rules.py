@@ -39,6 +39,7 @@ RULES: dict[tuple[str, str], str] = {
     ("GET", "/api/v1/users/{user_id}/activity"):                     "401 403 403 403 403 403 ok ok ok",
     ("POST", "/api/v1/runs"):                                        "401 403 403 403 403 403 ok 403 ok",
     ("GET", "/api/v1/runs"):                                         "401 ok ok ok ok ok ok ok ok",
+    ("GET", "/api/v1/upload-formats"):                               "401 ok ok ok ok ok ok ok ok",
     ("GET", "/api/v1/runs/{run_id}"):                                "401 ok 404 404 ok ok ok ok ok",
     ("GET", "/api/v1/runs/{run_id}/keyframes"):                      "401 ok 404 404 ok ok ok ok ok",
     ("GET", "/api/v1/runs/{run_id}/export"):                         "401 ok 404 404 ok ok ok ok ok",

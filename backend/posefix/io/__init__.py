@@ -20,7 +20,7 @@ from posefix.io.edits import EditSet, MatchedEdits, Move, match_edits, read_edit
 from posefix.io.errors import EditMatchError, EditsFormatError, OrientationDerivedWarning, RunFormatError
 
 __all__ = [
-    "read_run", "write_run", "detect_format", "READ_FORMATS", "WRITE_FORMATS",
+    "read_run", "write_run", "detect_format", "READ_FORMATS", "WRITE_FORMATS", "FILE_EXTENSIONS",
     "read_edits", "write_edits", "match_edits", "EditSet", "Move", "MatchedEdits",
     "RunFormatError", "EditsFormatError", "EditMatchError", "OrientationDerivedWarning",
 ]
@@ -31,6 +31,8 @@ _EXTENSIONS = {
     ".csv": "csv", ".parquet": "parquet", ".arrow": "arrow", ".feather": "arrow", ".ipc": "arrow",
     ".gpx": "gpx", ".geojson": "geojson", ".json": "geojson", ".tum": "tum", ".txt": "tum",
 }
+
+FILE_EXTENSIONS = tuple(sorted(_EXTENSIONS))  # the run files read by extension (folders aside)
 
 
 def detect_format(path: str | os.PathLike, *, for_writing: bool = False) -> str:

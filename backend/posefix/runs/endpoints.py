@@ -22,8 +22,9 @@ from posefix.runs.models import RunStatus
 from posefix.runs.warm import prewarm
 from posefix.users.models import Role
 from posefix.runs.schemas import (
-    ImageList, ImagePublic, ReviewRequest, RunEventPublic, RunHistory, RunList, RunPublic,
+    ImageList, ImagePublic, ReviewRequest, RunEventPublic, RunHistory, RunList, RunPublic, UploadFormats,
 )
+from posefix.runs.uploads import IMAGE_TYPES, RUN_EXTENSIONS
 
 router = APIRouter(tags=["runs"])
 
@@ -105,6 +106,12 @@ async def upload_run(request: Request, principal: UploaderUser, session: Session
         return service.run_public(run, n_images)
     finally:
         await form.close()
+
+
+@router.get("/upload-formats", response_model=UploadFormats, responses=responses(401))
+def upload_formats(principal: AnyUser) -> UploadFormats:
+    """The file extensions ``POST /runs`` accepts: the upload form offers exactly these."""
+    return UploadFormats(run=sorted(RUN_EXTENSIONS), images=sorted(IMAGE_TYPES))
 
 
 @router.get("/runs", response_model=RunList, responses=responses(400, 401))

@@ -58,6 +58,13 @@ class RunList(BaseModel):
     offset: int
 
 
+class UploadFormats(BaseModel):
+    """The file name extensions an upload accepts, lower case with the dot."""
+
+    run: list[str] = Field(description="run files, and .zip for a zipped KITTI oxts or comma2k19 folder")
+    images: list[str] = Field(description="image files (also accepted inside a .zip)")
+
+
 class RunEventPublic(BaseModel):
     model_config = ConfigDict(from_attributes=True)
     id: int

@@ -23,9 +23,12 @@ from PIL import Image
 
 from posefix.config import Settings
 from posefix.errors import BadRequest, PayloadTooLarge, Unprocessable
+from posefix.io import FILE_EXTENSIONS
 
 IMAGE_TYPES = {".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".png": "image/png", ".webp": "image/webp"}
-RUN_EXTENSIONS = {".csv", ".parquet", ".arrow", ".feather", ".gpx", ".geojson", ".json", ".tum", ".txt", ".zip"}
+# What the readers know by extension, and a zip of a run folder (KITTI oxts, comma2k19): the
+# one list the upload form offers too (GET /api/v1/upload-formats).
+RUN_EXTENSIONS = frozenset(FILE_EXTENSIONS) | {".zip"}
 MAX_IMAGE_PIXELS = 100_000_000
 _BAD_NAME = re.compile(r"[\x00-\x1f\x7f]")
 CHUNK = 1 << 20

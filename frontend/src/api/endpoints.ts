@@ -23,6 +23,7 @@ export const api = {
   logout: () => unwrap(client.POST("/api/v1/auth/logout", {})),
   me: () => unwrap(client.GET("/api/v1/auth/me")),
 
+  uploadFormats: () => unwrap(client.GET("/api/v1/upload-formats")),
   listRuns: (query: { limit?: number; offset?: number; name?: string; status?: string } = {}) =>
     unwrap(client.GET("/api/v1/runs", { params: { query: query as never } })),
   getRun: (id: string) => unwrap(client.GET("/api/v1/runs/{run_id}", { params: { path: { run_id: Number(id) } } })),

@@ -1193,6 +1193,26 @@ export interface paths {
         patch?: never;
         trace?: never;
     };
+    "/api/v1/upload-formats": {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        /**
+         * Upload Formats
+         * @description The file extensions ``POST /runs`` accepts: the upload form offers exactly these.
+         */
+        get: operations["upload_formats_api_v1_upload_formats_get"];
+        put?: never;
+        post?: never;
+        delete?: never;
+        options?: never;
+        head?: never;
+        patch?: never;
+        trace?: never;
+    };
     "/api/v1/users": {
         parameters: {
             query?: never;
@@ -2928,6 +2948,22 @@ export interface components {
             task_run_id: number | null;
             /** To Status */
             to_status: string;
+        };
+        /**
+         * UploadFormats
+         * @description The file name extensions an upload accepts, lower case with the dot.
+         */
+        UploadFormats: {
+            /**
+             * Images
+             * @description image files (also accepted inside a .zip)
+             */
+            images: string[];
+            /**
+             * Run
+             * @description run files, and .zip for a zipped KITTI oxts or comma2k19 folder
+             */
+            run: string[];
         };
         /** UserActivity */
         UserActivity: {
@@ -7257,6 +7293,35 @@ export interface operations {
                 };
                 content: {
                     "application/json": components["schemas"]["HTTPValidationError"];
+                };
+            };
+        };
+    };
+    upload_formats_api_v1_upload_formats_get: {
+        parameters: {
+            query?: never;
+            header?: never;
+            path?: never;
+            cookie?: never;
+        };
+        requestBody?: never;
+        responses: {
+            /** @description Successful Response */
+            200: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["UploadFormats"];
+                };
+            };
+            /** @description Not authenticated */
+            401: {
+                headers: {
+                    [name: string]: unknown;
+                };
+                content: {
+                    "application/json": components["schemas"]["ErrorBody"];
                 };
             };
         };

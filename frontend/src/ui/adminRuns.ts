@@ -6,8 +6,11 @@ import { fmtTime, h, plural } from "./dom";
 
 export function renderAdminRuns(main: HTMLElement, _ctx: AppContext): () => void {
   const name = h("input", { id: "up-name", name: "name", required: true });
-  const file = h("input", { id: "up-file", name: "file", type: "file", required: true, accept: ".csv,.gpx,.geojson,.json,.txt,.tum,.kitti,.zip" });
-  const images = h("input", { id: "up-images", name: "images", type: "file", multiple: true, accept: ".zip,image/*" });
+  // The pickers offer what the server accepts: its one list, asked for below.
+  const file = h("input", { id: "up-file", name: "file", type: "file", required: true, "aria-describedby": "up-file-kinds" });
+  const images = h("input", { id: "up-images", name: "images", type: "file", multiple: true, "aria-describedby": "up-images-kinds" });
+  const fileKinds = h("small", { id: "up-file-kinds", class: "hint muted", "data-testid": "run-extensions" });
+  const imageKinds = h("small", { id: "up-images-kinds", class: "hint muted" });
   const bar = h("progress", { max: 1, value: 0, "aria-label": "Upload progress" });
   const msg = h("p", { role: "status", "aria-live": "polite" });
   const button = h("button", { type: "submit", class: "primary" }, "Upload");
@@ -15,9 +18,18 @@ export function renderAdminRuns(main: HTMLElement, _ctx: AppContext): () => void
   const form = h("form", { class: "card", "aria-label": "Upload a run" },
     h("h2", {}, "Upload a run"),
     h("label", { for: "up-name" }, "Name"), name,
-    h("label", { for: "up-file" }, "Run file (CSV, GPX, GeoJSON, TUM, KITTI, comma2k19)"), file,
-    h("label", { for: "up-images" }, "Images (a zip, or several images; optional)"), images,
+    h("label", { for: "up-file" }, "Run file (CSV, Parquet, Arrow, GPX, GeoJSON, TUM; a zipped KITTI or comma2k19 folder)"), file, fileKinds,
+    h("label", { for: "up-images" }, "Images (a zip, or several images; optional)"), images, imageKinds,
     button, bar, msg,
+  );
+  api.uploadFormats().then(
+    (f) => {
+      file.accept = f.run.join(",");
+      images.accept = [".zip", ...f.images].join(",");
+      fileKinds.textContent = `Accepted: ${f.run.join(" ")}`;
+      imageKinds.textContent = `Accepted: .zip ${f.images.join(" ")}`;
+    },
+    (err) => (fileKinds.textContent = `The accepted file types could not be loaded: ${describeError(err)}`),
   );
   file.addEventListener("change", () => {
     if (!name.value && file.files?.[0]) name.value = file.files[0].name.replace(/\.[^.]+$/, "");
