@@ -11,8 +11,9 @@ from posefix.core import terms as T
 from posefix.core.drift import smooth_gauss_markov
 from posefix.core.simulate import simulate
 from posefix.core.solver import solve_banded
-from posefix.engine import CorrectionConfig, prepare
+from posefix.engine import CorrectionConfig, Edit, prepare
 from posefix.engine.calibrate import ProcessFit, best_process, fit_processes, loo_residuals, variogram
+from posefix.engine.edits import Edits
 from posefix.engine.naive import naive_held_out
 from posefix.io.edits import EditSet, Move
 
@@ -122,3 +123,21 @@ def test_naive_candidate_is_naive_interpolation_and_its_held_out_residuals_equal
         s = problem.solve(EditSet(moves=moves))
         at = int(np.searchsorted(s.keyframes.index, rows[k]))
         assert np.allclose(s.keyframes.p_enu_m[at, :2] - c[k, :2], r[k], atol=1e-6)
+
+
+def test_a_drag_on_a_naive_revision_previews_naive_interpolation():
+    sim = simulate(duration_s=600.0, rate_hz=2.0, edit_every_s=0.0, seed=5, regime="canyon")
+    problem = prepare(sim.run, CorrectionConfig.from_dict({"calibration": {"model": "naive"}}))
+    kf = problem.keyframe_index
+    rows = kf[[50, 150, 250, 350, 450]]
+    edits = Edits(tuple(Edit(int(k), float(sim.truth.lon_deg[r]), float(sim.truth.lat_deg[r]))
+                        for k, r in zip((50, 150, 250, 350, 450), rows)))
+    base = problem.solve_edits(edits)
+    assert base.drift.calibration.model == "naive"
+    p = base.keyframes.p_enu_m[200] + np.array([2.0, 1.0, 0.0])
+    lat, lon, _ = geodesy.enu_to_geodetic(p[None], problem.origin)
+    pv = problem.preview([Edit(200, float(lon[0]), float(lat[0]))], base_edits=edits, base=base)
+    assert pv.refusals == [] and pv.solution.solver.method == "naive"
+    assert np.allclose(pv.solution.keyframes.p_enu_m[200, :2], p[:2], atol=1e-6)  # the dragged keyframe lands on the drag
+    # beyond the edits either side the run keeps the revision's positions
+    assert np.allclose(pv.solution.keyframes.p_enu_m[260:, :2], base.keyframes.p_enu_m[260:, :2], atol=1e-9)
