@@ -1,7 +1,7 @@
 import { describe, expect, it } from "vitest";
 import { checkNewMove } from "../src/rules/apply";
 import { distanceM, enuProjector } from "../src/rules/geodesy";
-import { checkEdits, formatG, isAdjustable, lockSpan, lockedMask } from "../src/rules/rules";
+import { checkEdits, formatG, isAdjustable, lockSpan, lockedMask, ordinal } from "../src/rules/rules";
 import { EMPTY_EDITS } from "../src/state/types";
 import { RULES, eastOf, straightDoc } from "./fixtures";
 
@@ -97,5 +97,16 @@ describe("rules on lon/lat docs", () => {
     const d2 = straightDoc();
     d2.keyframes[4] = { ...d2.keyframes[4], edited: true };
     expect(checkNewMove(d2, EMPTY_EDITS, 6, eastOf(origin, 60, 1))?.reason).toBe("locked");
+  });
+});
+
+describe("messages", () => {
+  it("read as English for any count, as the server's do", () => {
+    const en: [number, number][] = [[0, 0], [10, 0], [20, 0], [30, 0]];
+    const base = { ...RULES, lock_n: 1, every_n: 2, max_move_m: 1000 };
+    expect(checkEdits(base, en, [{ index: 1, east_m: 10, north_m: 1 }]).refusals[0].message).toContain("every 2nd keyframe");
+    const locked = checkEdits({ ...base, every_n: 1 }, en, [{ index: 2, east_m: 20, north_m: 1 }], [], new Map([[1, [10, 1] as const]]));
+    expect(locked.refusals[0].message).toContain("within 1 keyframe of");
+    expect([1, 2, 3, 4, 11, 12, 13, 21, 22, 101, 111].map(ordinal)).toEqual(["1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "22nd", "101st", "111th"]);
   });
 });

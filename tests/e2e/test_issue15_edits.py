@@ -110,3 +110,22 @@ def test_a_preview_on_a_stale_revision_shows_the_conflict(server, browser, run_i
     conflict.wait_for(timeout=15_000)
     assert "Someone saved revision 1 while you were editing revision 0" in conflict.inner_text()
     page.close()
+
+
+def test_a_notice_leaves_when_the_state_it_describes_changes(server, browser, run_id):
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    login(page, server)
+    open_run(page, server, run_id)
+    zoom_to(page, 10, zoom=18)
+    page.mouse.click(*keyframe_px(page, 10))
+    page.keyboard.press("ArrowRight")
+    wait_unsaved(page, 1)
+    page.get_by_test_id("submit").click()
+    notices = page.get_by_test_id("notices")
+    notices.filter(has_text="Submitted. Revision 1 is ready.").wait_for(timeout=60_000)
+    assert page.get_by_test_id("submit-msg").inner_text() == "Saved as revision 1."
+    page.mouse.click(*keyframe_px(page, 20))
+    page.keyboard.press("ArrowUp")  # a new unsaved edit: "saved" and "ready" no longer describe the screen
+    wait_unsaved(page, 1)
+    assert notices.inner_text().strip() == "" and page.get_by_test_id("submit-msg").inner_text() == ""
+    page.close()

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from posefix.core.rules import REASONS, EditRules, KeyframeMove, adjustable_mask, check_edits, locked_mask
+from posefix.core.rules import REASONS, EditRules, KeyframeMove, adjustable_mask, check_edits, locked_mask, ordinal
 
 VECTORS = Path(__file__).resolve().parents[1] / "vectors" / "edit_rules.json"
 CASES = json.loads(VECTORS.read_text())["cases"]
@@ -45,3 +45,13 @@ def test_messages_name_the_keyframe_and_limit():
     out = check_edits(rules, np.zeros((3, 2)), [KeyframeMove(1, 30.0, 40.0)])
     assert out.refusals[0].reason == "too_far"
     assert "keyframe 1" in out.refusals[0].message.lower() and "50.0 m" in out.refusals[0].message and "5 m" in out.refusals[0].message
+
+
+def test_messages_read_as_english_for_any_count():
+    en = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]])
+    out = check_edits(EditRules(every_n=2, lock_n=1), en, [KeyframeMove(0, 0.0, 1.0), KeyframeMove(1, 10.0, 1.0)])
+    assert "every 2nd keyframe" in out.refusals[0].message
+    out = check_edits(EditRules(lock_n=1), en, [KeyframeMove(2, 20.0, 1.0)], edited_before={1: (10.0, 1.0)})
+    assert "within 1 keyframe of" in out.refusals[0].message
+    assert [ordinal(n) for n in (1, 2, 3, 4, 11, 12, 13, 21, 22, 101, 111)] == \
+        ["1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "22nd", "101st", "111th"]

@@ -241,11 +241,12 @@ def _first_refusal(rules, reported, move, k, seen, deleted_set, adjustable, lock
         return Refusal(i, "deleted", f"Keyframe {i} is deleted in this batch and cannot also be moved.")
     if not adjustable[i]:
         return Refusal(
-            i, "not_adjustable", f"Only every {rules.every_n}th keyframe can be moved; keyframe {i} is not one of them."
+            i, "not_adjustable", f"Only every {ordinal(rules.every_n)} keyframe can be moved; keyframe {i} is not one of them."
         )
     if i in locked:
         return Refusal(
-            i, "locked", f"Keyframe {i} is locked: it lies within {rules.lock_n} keyframes of an edited keyframe."
+            i, "locked",
+            f"Keyframe {i} is locked: it lies within {rules.lock_n} keyframe{'' if rules.lock_n == 1 else 's'} of an edited keyframe."
         )
     distance_m = float(np.hypot(move.east_m - reported[i, 0], move.north_m - reported[i, 1]))
     if distance_m > rules.max_move_m:
@@ -255,6 +256,12 @@ def _first_refusal(rules, reported, move, k, seen, deleted_set, adjustable, lock
             f"Keyframe {i} would move {distance_m:.1f} m; the limit is {rules.max_move_m:g} m.",
         )
     return None
+
+
+def ordinal(n: int) -> str:
+    """1st, 2nd, 3rd, 4th, 11th, 12th, 21st..."""
+    suffix = "th" if 11 <= abs(n) % 100 <= 13 else {1: "st", 2: "nd", 3: "rd"}.get(abs(n) % 10, "th")
+    return f"{n}{suffix}"
 
 
 def keyframes_left(n_keyframes: int, deleted: list[int], batch_deleted: list[int]) -> list[Refusal]:

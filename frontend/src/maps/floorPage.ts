@@ -8,7 +8,7 @@
  */
 import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/context";
-import { clear, fmtTime, h } from "../ui/dom";
+import { clear, fmtTime, h, plural } from "../ui/dom";
 import { type FloorPlan, type WalkStep, type WalkTrack, jobResult, mapsApi } from "./api";
 import { LiveSession } from "../tracker/live";
 import { WalkFormatError, parseWalk } from "../tracker/sensors";
@@ -292,7 +292,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     zoomBtn.textContent = "Whole floor";
     const e = t.errors;
     summary.replaceChildren(
-      h("p", {}, `${t.walk.file}: ${t.walk.n_steps} steps, tracked in ${t.walk.track_ms.toFixed(0)} ms (${t.walk.ms_per_step.toFixed(2)} ms per step).`),
+      h("p", {}, `${t.walk.file}: ${plural(t.walk.n_steps, "step")}, tracked in ${t.walk.track_ms.toFixed(0)} ms (${t.walk.ms_per_step.toFixed(2)} ms per step).`),
       ...(t.walk.converged_at_end === undefined ? [] : [h("p", { "data-testid": "walk-converged" }, t.walk.converged_at_end
         ? `Converged: the walk is placed (${Math.round(100 * (t.walk.converged_share ?? 0))} % of its steps on one place).`
         : `Not placed: ${placeText(t.steps[t.steps.length - 1])} at the end; the track shown is the most likely, not a fix.`)]),
@@ -348,7 +348,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       const t = await mapsApi.trackWalk(fp.id, fd);
       const e = t.errors;
       serverLine.textContent = e.n
-        ? `Server (smoothed over the whole walk): mean ${fmtM(e.mean_m)} at ${e.n} waypoints, ${t.walk.ms_per_step.toFixed(2)} ms per step; this browser shows the live (filtered) position.`
+        ? `Server (smoothed over the whole walk): mean ${fmtM(e.mean_m)} at ${plural(e.n, "waypoint")}, ${t.walk.ms_per_step.toFixed(2)} ms per step; this browser shows the live (filtered) position.`
         : "The server tracked the walk; it has no waypoints to compare.";
     } catch (err) {
       serverLine.textContent = `The server could not be asked: ${describeError(err)}`;
@@ -385,7 +385,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     scrub.max = String(track.steps.length - 1);
     scrub.disabled = play.disabled = zoomBtn.disabled = false;
     const sigma = `2σ ${fmtM(2 * last.summary.sigma_major_m)}`;
-    liveMsg.textContent = `${final ? "Stopped" : "Tracking"}: ${pts.length - 1} steps · ` + (last.converged
+    liveMsg.textContent = `${final ? "Stopped" : "Tracking"}: ${plural(pts.length - 1, "step")} · ` + (last.converged
       ? `located (${sigma})`
       : last.modes.length > 1
         ? `not located yet: ${last.modes.length} places fit the steps so far, up to ${fmtM(last.spread_m)} apart (the likeliest holds ${Math.round(100 * last.modes[0].mass)} %)`

@@ -187,16 +187,23 @@ function firstRefusal(
     return { index: i, reason: "deleted", message: `Keyframe ${i} is deleted in this batch and cannot also be moved.` };
   }
   if (!isAdjustable(i, rules)) {
-    return { index: i, reason: "not_adjustable", message: `Only every ${rules.every_n}th keyframe can be moved; keyframe ${i} is not one of them.` };
+    return { index: i, reason: "not_adjustable", message: `Only every ${ordinal(rules.every_n)} keyframe can be moved; keyframe ${i} is not one of them.` };
   }
   if (locked.has(i)) {
-    return { index: i, reason: "locked", message: `Keyframe ${i} is locked: it lies within ${rules.lock_n} keyframes of an edited keyframe.` };
+    return { index: i, reason: "locked", message: `Keyframe ${i} is locked: it lies within ${rules.lock_n} keyframe${rules.lock_n === 1 ? "" : "s"} of an edited keyframe.` };
   }
   const distanceM = Math.hypot(move.east_m - reported[i][0], move.north_m - reported[i][1]);
   if (distanceM > rules.max_move_m) {
     return { index: i, reason: "too_far", message: `Keyframe ${i} would move ${distanceM.toFixed(1)} m; the limit is ${formatG(rules.max_move_m)} m.` };
   }
   return null;
+}
+
+/** 1st, 2nd, 3rd, 4th, 11th, 12th, 21st… */
+export function ordinal(n: number): string {
+  const teen = Math.abs(n) % 100 >= 11 && Math.abs(n) % 100 <= 13;
+  const suffix = teen ? "th" : ({ 1: "st", 2: "nd", 3: "rd" } as Record<number, string>)[Math.abs(n) % 10] ?? "th";
+  return `${n}${suffix}`;
 }
 
 /** Python's `:g` for the limits we print (no trailing zeros). */

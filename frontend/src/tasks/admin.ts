@@ -108,7 +108,7 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
         const cb = h("input", { type: "checkbox", value: String(run.id), "data-run": String(run.id), "aria-label": `Run ${run.name}` });
         cb.addEventListener("change", () => toggle(run.id, cb.checked));
         boxes[run.id] = cb;
-        return h("li", {}, h("label", {}, cb, ` ${run.name} `, h("span", { class: "muted" }, `#${run.id} · ${run.n_keyframes} keyframes · ${run.status}`)));
+        return h("li", {}, h("label", {}, cb, ` ${run.name} `, h("span", { class: "muted" }, `#${run.id} · ${plural(run.n_keyframes, "keyframe")} · ${run.status}`)));
       })));
     void showMap();
   }, (err) => runList.replaceChildren(h("p", { class: "error", role: "alert" }, describeError(err))));

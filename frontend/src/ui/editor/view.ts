@@ -52,7 +52,13 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
 
   // ---- layout
   const notices = h("div", { class: "notices", role: "status", "aria-live": "polite", "data-testid": "notices" });
-  const notify = (t: string) => notices.replaceChildren(h("p", {}, t));
+  // A notice speaks of the edits and revision shown when it was given: it leaves when they change.
+  let noticeFor: { doc: unknown; edits: unknown } | null = null;
+  const notify = (t: string) => {
+    notices.replaceChildren(h("p", {}, t));
+    const s = store.get();
+    noticeFor = { doc: s.doc, edits: currentEdits(s) };
+  };
   const suggest = new SuggestionsPanel(ctl, notify);
   cleanups.push(() => suggest.dispose());
   const toolbar = new EditorToolbar({
@@ -236,6 +242,10 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     errorBox.hidden = !s.error;
     errorBox.textContent = s.error ?? "";
     conflict.render(s, prev);
+    if (noticeFor && (noticeFor.doc !== s.doc || noticeFor.edits !== currentEdits(s))) {
+      noticeFor = null;
+      notices.replaceChildren();
+    }
 
     const heavy = !prev || prev.doc !== s.doc || currentEdits(prev) !== currentEdits(s) || prev.preview !== s.preview || prev.showGhost !== s.showGhost;
     if (heavy) {
