@@ -1,6 +1,6 @@
 """Map matching in the browser: an admin uploads the shared floor plan, waits for its model,
 tracks and replays a walk and sees the error at the waypoints; an operator fetches
-map-matching suggestions in the editor, accepts one with a click, submits, and the new
+map-matching suggestions in the editor, picks one with a click and accepts it with the button, submits, and the new
 revision stores the move as a suggestion."""
 
 from __future__ import annotations
@@ -93,6 +93,11 @@ def test_editor_accept_a_suggestion_and_submit(server, context, run_id):
         """(c) => { const m = window.__posefixMap; const p = m.project(c); const r = m.getCanvas().getBoundingClientRect();
             return [r.left + p.x, r.top + p.y]; }""", pick[2])
     page.mouse.click(x, y)
+    # The click picks the suggestion; accepting it is the explicit button (or Enter).
+    page.get_by_test_id("suggestion-current").filter(has_text=f"Keyframe {pick[0]}:").wait_for(timeout=10_000)
+    page.wait_for_timeout(300)
+    assert page.evaluate("document.querySelector('.editor').dataset.unsaved") == "0"
+    page.get_by_test_id("suggestion-accept").click()
     page.wait_for_function("() => document.querySelector('.editor').dataset.unsaved === '1'", timeout=10_000)
     assert f"keyframe {pick[0]}" in page.get_by_test_id("notices").inner_text()
     page.wait_for_function("() => document.querySelector('.editor').dataset.previewCurrent === 'true'", timeout=30_000)

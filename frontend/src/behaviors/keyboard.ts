@@ -5,12 +5,18 @@
  */
 import type { EditorState } from "../state/editor";
 
-export type EditorCommand =
-  | "undo" | "redo" | "next" | "previous" | "next-adjustable" | "toggle-delete" | "delete-range"
-  | "images" | "ghost" | "fit" | "unmove" | "history" | "escape" | NudgeCommand;
-
 /** Arrow keys move the selected keyframe: 0.5 m a press, 5 m with Shift. */
 export type NudgeCommand = `nudge-${"east" | "west" | "north" | "south"}${"" | "-far"}`;
+
+const NUDGES = ["nudge-east", "nudge-west", "nudge-north", "nudge-south", "nudge-east-far", "nudge-west-far", "nudge-north-far", "nudge-south-far"] as const satisfies readonly NudgeCommand[];
+
+export const EDITOR_COMMANDS = [
+  "undo", "redo", "next", "previous", "next-adjustable", "toggle-delete", "delete-range",
+  "images", "ghost", "fit", "unmove", "history", "escape",
+  "suggestion-accept", "suggestion-skip", "suggestion-next", "suggestion-previous",
+  ...NUDGES,
+] as const;
+export type EditorCommand = (typeof EDITOR_COMMANDS)[number];
 
 export const NUDGE_M = 0.5;
 export const NUDGE_FAR_M = 5;
@@ -28,6 +34,42 @@ export function nudgeVector(c: EditorCommand): [number, number] | null {
   return [e * d, n * d];
 }
 
+/**
+ * Every editor shortcut in words: the help overlay and the side panel list this table, and a
+ * unit test checks each entry against `editorCommand`, so the help cannot drift from the keys.
+ * `when` names a condition the keys need beyond the editor being open.
+ */
+export const EDITOR_SHORTCUTS: { keys: string[]; command: EditorCommand; what: string; when?: "suggestions" | "selected" }[] = [
+  { keys: [".", "n"], command: "next", what: "Select the next keyframe" },
+  { keys: [",", "p"], command: "previous", what: "Select the previous keyframe" },
+  { keys: ["A"], command: "next-adjustable", what: "Select the next adjustable keyframe" },
+  ...(Object.entries(ARROWS).flatMap(([key, dir]) => [
+    { keys: [key], command: `nudge-${dir}` as NudgeCommand, what: `Nudge the selected keyframe ${NUDGE_M} m ${dir}`, when: "selected" as const },
+    { keys: [`Shift+${key}`], command: `nudge-${dir}-far` as NudgeCommand, what: `Nudge it ${NUDGE_FAR_M} m ${dir}`, when: "selected" as const },
+  ])),
+  { keys: ["Ctrl+Z"], command: "undo", what: "Undo the last step" },
+  { keys: ["Ctrl+Shift+Z", "Ctrl+Y"], command: "redo", what: "Redo" },
+  { keys: ["Delete", "Backspace"], command: "toggle-delete", what: "Mark the selected keyframe for deletion, or restore it" },
+  { keys: ["R"], command: "delete-range", what: "Delete a range: click its first and last keyframe" },
+  { keys: ["U"], command: "unmove", what: "Put the selected keyframe back (drop its move)" },
+  { keys: ["I"], command: "images", what: "Images of the selected keyframe" },
+  { keys: ["G"], command: "ghost", what: "Show or hide the loaded revision (ghost)" },
+  { keys: ["F"], command: "fit", what: "Zoom to the whole run" },
+  { keys: ["H"], command: "history", what: "History: revisions, compare, revert" },
+  { keys: ["Escape"], command: "escape", what: "Cancel: clear the selection, close panels" },
+  { keys: ["Enter"], command: "suggestion-accept", what: "Accept the picked suggestion", when: "suggestions" },
+  { keys: ["S"], command: "suggestion-skip", what: "Skip the picked suggestion, pick the next", when: "suggestions" },
+  { keys: ["]"], command: "suggestion-next", what: "Pick the next suggestion", when: "suggestions" },
+  { keys: ["["], command: "suggestion-previous", what: "Pick the previous suggestion", when: "suggestions" },
+];
+
+/** "Ctrl+Shift+Z" -> the key press it names (for the table above and its test). */
+export function parseKeys(keys: string): KeyLike {
+  const parts = keys.split("+");
+  const key = parts.length > 1 && parts[parts.length - 1] === "" ? "+" : parts[parts.length - 1];
+  return { key, ctrlKey: parts.includes("Ctrl"), metaKey: parts.includes("Meta"), shiftKey: parts.includes("Shift") };
+}
+
 export interface KeyLike {
   key: string;
   ctrlKey: boolean;
@@ -36,8 +78,15 @@ export interface KeyLike {
 }
 
 /** The command for a key press in state `s`, or null when the key is not the editor's. */
-export function editorCommand(e: KeyLike, s: Pick<EditorState, "conflict" | "mode" | "selected">): EditorCommand | null {
+export function editorCommand(e: KeyLike, s: Pick<EditorState, "conflict" | "mode" | "selected"> & Partial<Pick<EditorState, "suggestions" | "doc">>): EditorCommand | null {
   if (s.conflict || s.mode === "drag") return null;
+  const g = s.suggestions;
+  if (g?.kind === "ready" && g.shown && s.doc?.revision === g.revision && !e.ctrlKey && !e.metaKey) {
+    if (e.key === "Enter") return "suggestion-accept";
+    if (e.key === "s" || e.key === "S") return "suggestion-skip";
+    if (e.key === "]") return "suggestion-next";
+    if (e.key === "[") return "suggestion-previous";
+  }
   const k = e.key;
   // With nothing selected the arrows are the map's own (pan).
   if (k in ARROWS) return s.selected === null || e.ctrlKey || e.metaKey ? null : `nudge-${ARROWS[k]}${e.shiftKey ? "-far" : ""}`;
@@ -67,10 +116,18 @@ function typingInto(t: EventTarget | null): boolean {
   return !!el && (el.tagName === "INPUT" || el.tagName === "TEXTAREA" || el.tagName === "SELECT" || el.isContentEditable);
 }
 
+/** Keys pressed in an open dialog (image viewer, help) belong to it; Enter on a control presses it. */
+function ownedElsewhere(e: KeyboardEvent): boolean {
+  const el = e.target as HTMLElement | null;
+  if (!el || typeof el.closest !== "function") return false;
+  if (el.closest("dialog[open]")) return true;
+  return e.key === "Enter" && !!el.closest("button, a, summary");
+}
+
 /** Listen on `target` (capture phase); `run` performs a command. Returns the cleanup. */
 export function installEditorKeys(target: Window, state: () => EditorState, run: (c: EditorCommand) => void): () => void {
   const onKey = (e: KeyboardEvent) => {
-    if (typingInto(e.target)) return;
+    if (typingInto(e.target) || ownedElsewhere(e)) return;
     const c = editorCommand(e, state());
     if (c === null) return;
     run(c);

@@ -9,7 +9,9 @@ import { type EditorState, currentEdits, currentSuggestions, displayPositions } 
 import { suggestionsFC } from "../maps/suggestions";
 import {
   type FC,
+  OFFROAD_COLOR,
   STATUS_COLORS,
+  SUGGESTION_COLOR,
   compareFC,
   emptyFC,
   ghostFC,
@@ -26,12 +28,9 @@ export const SUGGESTION_POINT_LAYER = "pf-sug-point";
 /** Revisions compared in the history panel: the older dashed teal, the newer violet. */
 export const COMPARE_FROM = "#0d9488";
 export const COMPARE_TO = "#7c3aed";
-/** Machine suggestions in amber, distinct from the operator's blues. */
-export const SUGGESTION_COLOR = "#d97706";
-
 function suggestionLayerFC(s: EditorState): FC {
   const g = currentSuggestions(s);
-  return g.kind === "ready" ? suggestionsFC(g.items, displayPositions(s), currentEdits(s)) : emptyFC();
+  return g.kind === "ready" && g.shown ? suggestionsFC(g.items, displayPositions(s), currentEdits(s), 0.5, g.focus) : emptyFC();
 }
 
 interface SourceSpec {
@@ -147,7 +146,11 @@ export class MapAdapter {
     const sug = (kind: string) => ["==", ["get", "kind"], kind] as never;
     add({ id: "pf-sug-path", type: "line", source: "pf-suggestions", filter: sug("path"), paint: { "line-color": SUGGESTION_COLOR, "line-width": 2, "line-opacity": 0.7, "line-dasharray": [3, 2] } });
     add({ id: "pf-sug-link", type: "line", source: "pf-suggestions", filter: sug("link"), paint: { "line-color": SUGGESTION_COLOR, "line-width": 1.5, "line-dasharray": [1, 1.5] } });
-    add({ id: "pf-sug-offroad", type: "circle", source: "pf-suggestions", filter: sug("offroad"), paint: { "circle-radius": 11, "circle-color": "rgba(0,0,0,0)", "circle-stroke-color": "#b91c1c", "circle-stroke-width": 2 } });
+    add({ id: "pf-sug-offroad", type: "circle", source: "pf-suggestions", filter: sug("offroad"), paint: { "circle-radius": 11, "circle-color": "rgba(0,0,0,0)", "circle-stroke-color": OFFROAD_COLOR, "circle-stroke-width": 2 } });
+    add({
+      id: "pf-sug-focus", type: "circle", source: "pf-suggestions", filter: ["all", ["==", ["get", "kind"], "point"], ["==", ["get", "focus"], true]] as never,
+      paint: { "circle-radius": 12, "circle-color": "rgba(0,0,0,0)", "circle-stroke-color": SUGGESTION_COLOR, "circle-stroke-width": 3 },
+    });
     add({
       id: SUGGESTION_POINT_LAYER, type: "circle", source: "pf-suggestions", filter: sug("point"),
       paint: { "circle-radius": 6, "circle-color": ["case", ["get", "accepted"], SUGGESTION_COLOR, "#ffffff"], "circle-stroke-color": SUGGESTION_COLOR, "circle-stroke-width": 2.5 },

@@ -20,6 +20,10 @@ export const STATUS_COLORS: Record<KeyframeStatus, string> = {
   fixed: "#64748b",
 };
 
+/** Machine suggestions and off-road flags: their own pink, apart from every keyframe status. */
+export const SUGGESTION_COLOR = "#db2777";
+export const OFFROAD_COLOR = "#9d174d";
+
 export const STATUS_LABELS: Record<KeyframeStatus, string> = {
   adjustable: "Adjustable",
   locked: "Locked",

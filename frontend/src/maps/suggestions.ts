@@ -8,9 +8,9 @@
  */
 import type { EditAction, EditResult } from "../actions/edits";
 import { checkNewMove } from "../rules/apply";
-import type { Edits, LonLat, Refusal, RunDoc, Suggestion, SuggestionsState } from "../state/types";
+import type { Edits, LonLat, Refusal, RunDoc, Suggestion, SuggestionsReady, SuggestionsState } from "../state/types";
 
-export type { Suggestion, SuggestionsState };
+export type { Suggestion, SuggestionsReady, SuggestionsState };
 
 /** Suggestions worth offering: adjustable keyframes the match would move by at least `minMoveM`. */
 export function offered(items: readonly Suggestion[], minMoveM = 0.5): Suggestion[] {
@@ -20,6 +20,65 @@ export function offered(items: readonly Suggestion[], minMoveM = 0.5): Suggestio
 /** Suggestions not yet staged at their suggested position. */
 export function pending(items: readonly Suggestion[], edits: Edits, minMoveM = 0.5): Suggestion[] {
   return offered(items, minMoveM).filter((s) => !edits.suggested?.has(s.index));
+}
+
+/** Suggestions still to decide: offered, not accepted, not skipped, in keyframe order. */
+export function todo(st: SuggestionsReady, edits: Edits): Suggestion[] {
+  return pending(st.items, edits).filter((s) => !st.skipped.has(s.index)).sort((a, b) => a.index - b.index);
+}
+
+/** The list the operator steps through: every offered suggestion, in keyframe order. */
+export function listed(st: SuggestionsReady): Suggestion[] {
+  return offered(st.items).sort((a, b) => a.index - b.index);
+}
+
+export function focused(st: SuggestionsReady): Suggestion | null {
+  return st.focus === null ? null : (listed(st).find((s) => s.index === st.focus) ?? null);
+}
+
+/** Fresh suggestions from the server: shown, none skipped, the first one to decide focused. */
+export function suggestionsReady(r: ReturnType<typeof suggestionsFrom>, edits: Edits): SuggestionsReady {
+  const st: SuggestionsReady = { kind: "ready", ...r, focus: null, skipped: new Set(), shown: true };
+  return { ...st, focus: todo(st, edits)[0]?.index ?? null };
+}
+
+/** Focus the suggestion of keyframe `index` (a click on its point or its row): never accepts. */
+export function focusSuggestion(st: SuggestionsReady, index: number): SuggestionsReady {
+  return listed(st).some((s) => s.index === index) ? { ...st, focus: index } : st;
+}
+
+/** Focus the next (`d` = +1) or previous (-1) suggestion of the list, stopping at its ends. */
+export function stepSuggestion(st: SuggestionsReady, d: 1 | -1): SuggestionsReady {
+  const list = listed(st);
+  if (list.length === 0) return st;
+  const at = list.findIndex((s) => s.index === st.focus);
+  const next = at < 0 ? (d > 0 ? 0 : list.length - 1) : Math.max(0, Math.min(list.length - 1, at + d));
+  return { ...st, focus: list[next].index };
+}
+
+/** The first suggestion still to decide after `index` (wrapping round), or null when none is left. */
+function nextTodo(st: SuggestionsReady, edits: Edits, index: number | null): number | null {
+  const left = todo(st, edits);
+  if (left.length === 0) return null;
+  return (left.find((s) => index === null || s.index > index) ?? left[0]).index;
+}
+
+/** Pass over the focused suggestion: it stays on the map, is left out of "Accept all", and the next one is focused. */
+export function skipSuggestion(st: SuggestionsReady, edits: Edits): SuggestionsReady {
+  if (st.focus === null) return st;
+  const skipped = new Set(st.skipped);
+  skipped.add(st.focus);
+  const next: SuggestionsReady = { ...st, skipped };
+  return { ...next, focus: nextTodo(next, edits, st.focus) };
+}
+
+/** After the focused suggestion was accepted (`edits` include it): focus the next one to decide. */
+export function focusAfterAccept(st: SuggestionsReady, edits: Edits): SuggestionsReady {
+  return { ...st, focus: nextTodo(st, edits, st.focus) };
+}
+
+export function toggleSuggestionsShown(st: SuggestionsReady): SuggestionsReady {
+  return { ...st, shown: !st.shown };
 }
 
 function stage(doc: RunDoc, edits: Edits, s: Suggestion): EditResult {
@@ -98,7 +157,7 @@ type Feature = GeoJSON.Feature<GeoJSON.Geometry, Record<string, unknown>>;
  * The suggestion layer: a dashed link from each keyframe (as displayed) to its suggestion,
  * the suggested points (accepted ones marked), and rings on off-road keyframes.
  */
-export function suggestionsFC(items: readonly Suggestion[], positions: readonly LonLat[], edits: Edits, minMoveM = 0.5): GeoJSON.FeatureCollection {
+export function suggestionsFC(items: readonly Suggestion[], positions: readonly LonLat[], edits: Edits, minMoveM = 0.5, focus: number | null = null): GeoJSON.FeatureCollection {
   const features: Feature[] = [];
   const offer = new Set(offered(items, minMoveM).map((s) => s.index));
   for (const s of items) {
@@ -108,7 +167,7 @@ export function suggestionsFC(items: readonly Suggestion[], positions: readonly 
     if (!offer.has(s.index)) continue;
     const accepted = edits.suggested?.has(s.index) ?? false;
     if (!accepted) features.push({ type: "Feature", geometry: { type: "LineString", coordinates: [[at[0], at[1]], [s.lonlat[0], s.lonlat[1]]] }, properties: { kind: "link", i: s.index } });
-    features.push({ type: "Feature", geometry: { type: "Point", coordinates: [s.lonlat[0], s.lonlat[1]] }, properties: { kind: "point", i: s.index, accepted, moved: Math.round(s.moved_m * 10) / 10 } });
+    features.push({ type: "Feature", geometry: { type: "Point", coordinates: [s.lonlat[0], s.lonlat[1]] }, properties: { kind: "point", i: s.index, accepted, focus: s.index === focus, moved: Math.round(s.moved_m * 10) / 10 } });
   }
   const line = items.map((s) => [s.lonlat[0], s.lonlat[1]]);
   if (line.length >= 2) features.unshift({ type: "Feature", geometry: { type: "LineString", coordinates: line }, properties: { kind: "path" } });

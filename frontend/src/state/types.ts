@@ -117,4 +117,19 @@ export type SuggestionsState =
   | { kind: "idle" }
   | { kind: "loading" }
   | { kind: "error"; message: string }
-  | { kind: "ready"; revision: number; items: Suggestion[]; offRoad: number; timeMs: number };
+  | SuggestionsReady;
+
+/** Suggestions on screen: one is focused (a click or the list picks it; accepting is explicit). */
+export interface SuggestionsReady {
+  kind: "ready";
+  revision: number;
+  items: Suggestion[];
+  offRoad: number;
+  timeMs: number;
+  /** Keyframe index of the focused suggestion, or null. */
+  focus: number | null;
+  /** Suggestions the operator passed over (not accepted, left out of "Accept all"). */
+  skipped: ReadonlySet<number>;
+  /** Whether the suggestion layer and its keys are on. */
+  shown: boolean;
+}

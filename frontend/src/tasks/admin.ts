@@ -9,8 +9,42 @@ import { fmtTime, h, plural } from "../ui/dom";
 import { createMap, fitBoxes } from "../map/createMap";
 import { type Json, type Task, type TaskCreate, tasksApi } from "./api";
 import { fmtReward, requirementText } from "./format";
+import { BUILTIN_QUALIFICATIONS, COMPARATOR_WORDS, comparatorsFor, qualificationNames, requirementValue, runAt, runMapFocus, takesValue } from "./taskForm";
 
-const COMPARATORS = ["ge", "gt", "le", "lt", "eq", "ne", "exists", "not_exists", "in", "not_in", "contains", "passed"];
+const VIEW_KEY = "posefix.taskmap.view";
+
+function savedView(): { center: [number, number]; zoom: number } | null {
+  try {
+    const v = JSON.parse(localStorage.getItem(VIEW_KEY) ?? "null") as { center: [number, number]; zoom: number } | null;
+    return v && Array.isArray(v.center) ? v : null;
+  } catch {
+    return null;
+  }
+}
+
+/** One requirement row: the qualification picked from the known names, the comparator in words. */
+function requirementRow(names: readonly string[]): HTMLElement {
+  const q = h("select", { "aria-label": "Qualification", "data-testid": "req-qualification" },
+    ...names.map((n) => h("option", { value: n }, BUILTIN_QUALIFICATIONS[n] ?? n)));
+  const c = h("select", { "aria-label": "Comparator", "data-testid": "req-comparator" });
+  const v = h("input", { "aria-label": "Value", "data-testid": "req-value" });
+  const del = h("button", { type: "button", "aria-label": "Remove requirement" }, "×");
+  const row = h("div", { class: "req" }, q, c, v, del);
+  const fillComparators = () => {
+    c.replaceChildren(...comparatorsFor(q.value).map((x) => h("option", { value: x }, COMPARATOR_WORDS[x] ?? x)));
+    fillValue();
+  };
+  const fillValue = () => {
+    const kind = takesValue(c.value);
+    v.hidden = kind === null;
+    v.placeholder = kind === "list" ? "numbers, e.g. 1, 2, 3" : "a number";
+  };
+  q.addEventListener("change", fillComparators);
+  c.addEventListener("change", fillValue);
+  del.addEventListener("click", () => row.remove());
+  fillComparators();
+  return row;
+}
 
 function field(label: string, input: HTMLElement, hint = ""): HTMLElement {
   return h("label", { class: "field" }, h("span", {}, label), input, hint ? h("small", { class: "muted" }, hint) : null);
@@ -20,7 +54,7 @@ function numberInput(name: string, value: number, attrs: Record<string, unknown>
   return h("input", { type: "number", name, value: String(value), ...attrs });
 }
 
-export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => void {
+export function renderTasksAdmin(main: HTMLElement, ctx: AppContext): () => void {
   const cleanups: (() => void)[] = [];
   const selected = new Set<number>();
   const runList = h("div", { class: "run-choice", "data-testid": "run-choice" }, h("p", {}, "Loading runs…"));
@@ -47,15 +81,14 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
   const orderRule = h("select", { "aria-label": "Order rule" }, h("option", { value: "flag" }, "flag"), h("option", { value: "refuse" }, "refuse"));
   const reqRows = h("div", { class: "reqs" });
   const addReq = h("button", { type: "button" }, "+ requirement");
+  let qualNames = qualificationNames([]);
+  if (ctx.user?.role === "admin") {
+    // Granted names come from the operators; a client sees the built-in ones.
+    tasksApi.operators().then((ops) => (qualNames = qualificationNames(ops)), () => undefined);
+  }
   addReq.addEventListener("click", () => {
     if (reqRows.children.length >= 10) return;
-    const q = h("input", { placeholder: "approved_count, accuracy_m, home_area, qualification_test or a granted name", "aria-label": "Qualification" });
-    const c = h("select", { "aria-label": "Comparator" }, ...COMPARATORS.map((x) => h("option", { value: x }, x)));
-    const v = h("input", { placeholder: "value (number or 1,2,3)", "aria-label": "Value" });
-    const del = h("button", { type: "button", "aria-label": "Remove requirement" }, "×");
-    const row = h("div", { class: "req" }, q, c, v, del);
-    del.addEventListener("click", () => row.remove());
-    reqRows.append(row);
+    reqRows.append(requirementRow(qualNames));
   });
   const formMsg = h("p", { role: "status", "data-testid": "create-msg" });
   const form = h("form", { class: "card task-form", "data-testid": "task-form" },
@@ -78,7 +111,7 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
   main.append(h("section", { class: "page wide" }, h("h1", {}, "Tasks"), form,
     h("section", { class: "card" }, h("h2", {}, "Progress"), tasksBox)));
 
-  let runs: { id: number; name: string; status: string; bbox: number[]; n_keyframes: number }[] = [];
+  let runs: { id: number; name: string; status: string; bbox: number[]; n_keyframes: number; created_at: string }[] = [];
   let map: maplibregl.Map | null = null;
   const boxes: Record<number, HTMLInputElement> = {};
   function renderMapSelection() {
@@ -95,18 +128,26 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
       }),
     };
   }
-  function toggle(id: number, on: boolean) {
+  function toggle(id: number, on: boolean, refit: boolean) {
     if (on) selected.add(id);
     else selected.delete(id);
     if (boxes[id]) boxes[id].checked = on;
     renderMapSelection();
+    if (refit && selected.size) focusMap(true);
+  }
+  /** Look at the selected runs, else where the admin was working (see runMapFocus). */
+  function focusMap(animate: boolean) {
+    if (!map) return;
+    const f = runMapFocus(runs, selected, savedView());
+    if (f?.kind === "box") fitBoxes(map, [f.box], { padding: 30, maxZoom: 15, animate });
+    else if (f?.kind === "view") map.jumpTo({ center: f.center, zoom: f.zoom });
   }
   tasksApi.runs().then((r) => {
     runs = r.items;
     runList.replaceChildren(runs.length === 0 ? h("p", { class: "muted" }, "No runs yet: upload some first.") :
       h("ul", { class: "plain" }, ...runs.map((run) => {
         const cb = h("input", { type: "checkbox", value: String(run.id), "data-run": String(run.id), "aria-label": `Run ${run.name}` });
-        cb.addEventListener("change", () => toggle(run.id, cb.checked));
+        cb.addEventListener("change", () => toggle(run.id, cb.checked, true));
         boxes[run.id] = cb;
         return h("li", {}, h("label", {}, cb, ` ${run.name} `, h("span", { class: "muted" }, `#${run.id} · ${plural(run.n_keyframes, "keyframe")} · ${run.status}`)));
       })));
@@ -115,7 +156,7 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
 
   async function showMap() {
     if (runs.length === 0) return;
-    const made = await createMap(mapEl, { zoom: 11, compactAttribution: true, alive: () => alive });
+    const made = await createMap(mapEl, { zoom: 11, compactAttribution: true, exposeAs: "__posefixTaskMap", alive: () => alive });
     if (!made) return;
     const m = made.map;
     map = m;
@@ -125,11 +166,24 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
         paint: { "fill-color": ["case", ["==", ["get", "selected"], 1], "#2563eb", "#94a3b8"], "fill-opacity": 0.25 } });
       m.addLayer({ id: "runs-line", type: "line", source: "runs",
         paint: { "line-color": ["case", ["==", ["get", "selected"], 1], "#1d4ed8", "#475569"], "line-width": 2 } });
-      fitBoxes(m, runs.map((r) => r.bbox), { padding: 30, maxZoom: 15 });
-      m.on("click", "runs-fill", (e) => {
-        const id = Number(e.features?.[0]?.properties?.id);
-        if (Number.isFinite(id)) toggle(id, !selected.has(id));
+      focusMap(false);
+      m.on("click", (e) => {
+        // 8 px of slack, so a click on a run's outline (or just outside it) picks it too.
+        const off = m.unproject([e.point.x + 8, e.point.y + 8]);
+        const tol: [number, number] = [Math.abs(off.lng - e.lngLat.lng), Math.abs(off.lat - e.lngLat.lat)];
+        const id = runAt(runs, e.lngLat.lng, e.lngLat.lat, tol);
+        if (id !== null) toggle(id, !selected.has(id), false);
       });
+      m.on("mouseenter", "runs-fill", () => (m.getCanvas().style.cursor = "pointer"));
+      m.on("mouseleave", "runs-fill", () => (m.getCanvas().style.cursor = ""));
+      m.on("moveend", () => {
+        try {
+          localStorage.setItem(VIEW_KEY, JSON.stringify({ center: m.getCenter().toArray(), zoom: m.getZoom() }));
+        } catch {
+          /* storage disabled: the map falls back to the newest run's region */
+        }
+      });
+      mapEl.dataset.ready = "true";
     });
   }
   let alive = true;
@@ -144,9 +198,13 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
     const requirements: Json[] = [];
     for (const row of Array.from(reqRows.children)) {
       const [q, c, v] = Array.from(row.querySelectorAll("input, select")) as HTMLInputElement[];
-      const raw = v.value.trim();
-      const value = raw === "" ? null : raw.includes(",") ? raw.split(",").map(Number) : Number(raw);
-      requirements.push({ qualification: q.value.trim(), comparator: c.value, value });
+      const r = requirementValue(c.value, v.value);
+      if ("error" in r) {
+        formMsg.textContent = `Requirement “${BUILTIN_QUALIFICATIONS[q.value] ?? q.value}”: ${r.error}.`;
+        v.focus();
+        return;
+      }
+      requirements.push({ qualification: q.value, comparator: c.value, value: r.value });
     }
     const body: Json = {
       title: title.value, instructions: instructions.value, run_ids: [...selected].sort((a, b) => a - b),
@@ -167,11 +225,19 @@ export function renderTasksAdmin(main: HTMLElement, _ctx: AppContext): () => voi
     try {
       const t = await tasksApi.create(body as TaskCreate);
       formMsg.textContent = `Task ${t.id} created with ${plural(t.counts?.open ?? 0, "assignment")} open.`;
+      resetForm();
       void refresh();
     } catch (err) {
       formMsg.textContent = describeError(err);
     }
   });
+
+  /** After a task is made: the form as new (no runs chosen, no requirements), the map where it was. */
+  function resetForm() {
+    form.reset();
+    reqRows.replaceChildren();
+    for (const id of [...selected]) toggle(id, false, false);
+  }
 
   function taskRow(t: Task): HTMLElement {
     const counts = Object.entries(t.counts ?? {}).map(([k, v]) => `${k} ${v}`).join(", ") || "—";

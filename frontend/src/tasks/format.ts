@@ -51,3 +51,24 @@ export function requirementText(r: { qualification?: unknown; comparator?: unkno
   const v = Array.isArray(r.value) ? r.value.join(", ") : r.value ?? "";
   return `${String(r.qualification)} ${words[String(r.comparator)] ?? String(r.comparator)} ${v}`.trim();
 }
+
+export type ReviewCommand = "next" | "previous" | "approve" | "reject" | "solo" | "next-run";
+
+/** The review queue's keys (the `?` overlay lists this table; a unit test checks it against `reviewCommand`). */
+export const REVIEW_SHORTCUTS: { keys: string[]; command: ReviewCommand; what: string }[] = [
+  { keys: ["J", "ArrowDown"], command: "next", what: "Focus the next submission" },
+  { keys: ["K", "ArrowUp"], command: "previous", what: "Focus the previous submission" },
+  { keys: ["A"], command: "approve", what: "Approve the focused submission" },
+  { keys: ["R"], command: "reject", what: "Reject it: type the reason, then Enter" },
+  { keys: ["S"], command: "solo", what: "Show the focused submission alone on the map, or all" },
+  { keys: ["N"], command: "next-run", what: "Next run in the review queue" },
+];
+
+/** Which review command a key press means, or null. */
+export function reviewCommand(e: { key: string; ctrlKey: boolean; metaKey: boolean; altKey?: boolean }): ReviewCommand | null {
+  if (e.ctrlKey || e.metaKey || e.altKey) return null;
+  if (e.key === "ArrowDown") return "next";
+  if (e.key === "ArrowUp") return "previous";
+  const k = e.key.toLowerCase();
+  return ({ j: "next", k: "previous", a: "approve", r: "reject", s: "solo", n: "next-run" } as Record<string, ReviewCommand>)[k] ?? null;
+}

@@ -9,7 +9,7 @@ import type { AppContext } from "../ui/context";
 import { fmtTime, h } from "../ui/dom";
 import { createMap, fitBoxes } from "../map/createMap";
 import { type ReviewView, tasksApi } from "./api";
-import { trackColour, worstKeyframes } from "./format";
+import { reviewCommand, trackColour, worstKeyframes } from "./format";
 
 export function renderReviewQueue(main: HTMLElement, _ctx: AppContext): () => void {
   const box = h("div", { "data-testid": "review-queue" }, h("p", {}, "Loading…"));
@@ -151,18 +151,18 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
 
   const onKey = (e: KeyboardEvent) => {
     const t = e.target as HTMLElement | null;
-    if (t && (t.tagName === "INPUT" || t.tagName === "TEXTAREA" || t.tagName === "SELECT") || e.ctrlKey || e.metaKey || e.altKey) return;
+    if (t && (t.tagName === "INPUT" || t.tagName === "TEXTAREA" || t.tagName === "SELECT" || t.closest?.("dialog[open]"))) return;
+    const c = reviewCommand(e);
+    if (c === null) return;
     const ids = pendingIds();
-    const k = e.key.toLowerCase();
-    if (k === "j" || e.key === "ArrowDown") focusAt = Math.min(focusAt + 1, Math.max(ids.length - 1, 0));
-    else if (k === "k" || e.key === "ArrowUp") focusAt = Math.max(focusAt - 1, 0);
-    else if (k === "a" && ids.length) void decide(ids[focusAt], "approve");
-    else if (k === "r" && ids.length) void decide(ids[focusAt], "reject");
-    else if (k === "s") solo = !solo;
-    else if (k === "n") void nextRun();
-    else return;
+    if (c === "next") focusAt = Math.min(focusAt + 1, Math.max(ids.length - 1, 0));
+    else if (c === "previous") focusAt = Math.max(focusAt - 1, 0);
+    else if (c === "approve" && ids.length) void decide(ids[focusAt], "approve");
+    else if (c === "reject" && ids.length) void decide(ids[focusAt], "reject");
+    else if (c === "solo") solo = !solo;
+    else if (c === "next-run") void nextRun();
     e.preventDefault();
-    if (k !== "r") focusCard();
+    if (c !== "reject") focusCard();
   };
   window.addEventListener("keydown", onKey);
   cleanups.push(() => window.removeEventListener("keydown", onKey));

@@ -11,6 +11,7 @@ import { renderAdminPeople } from "./adminPeople";
 import { renderAdminTiles } from "./adminTiles";
 import { clear, h } from "./dom";
 import { renderEditor } from "./editor/view";
+import { installHelpOverlay, renderHelp } from "./help";
 import { renderHome } from "./home";
 import { renderLogin } from "./login";
 import { renderTasksRoute, tasksNav } from "../tasks/routes";
@@ -51,6 +52,7 @@ export function startApp(root: HTMLElement): void {
         u && u.role === "admin" ? h("a", { href: "#/admin/people" }, "People") : null,
         ...tasksNav(u),
         u ? h("a", { href: "#/floors" }, "Floor plans") : null,
+        h("a", { href: "#/help", "data-testid": "help-link", title: "Help and keyboard shortcuts (?)" }, "Help"),
       ),
       u
         ? h(
@@ -79,6 +81,10 @@ export function startApp(root: HTMLElement): void {
     clear(main);
     const path = location.hash.replace(/^#/, "").split("?")[0] || "/";
     document.body.dataset.page = path.split("/")[1] || "home";
+    if (path === "/help") {
+      renderHelp(main);
+      return;
+    }
     if (path === "/login") {
       if (ctx.user) ctx.setUser(null);
       cleanup = renderLogin(main, ctx);
@@ -107,6 +113,7 @@ export function startApp(root: HTMLElement): void {
   }
 
   renderHeader();
+  installHelpOverlay(root);
   window.addEventListener("hashchange", route);
   route();
 }

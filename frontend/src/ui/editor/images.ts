@@ -11,7 +11,8 @@ export class ImagesPanel {
   private at = 0;
   isOpen = false;
 
-  constructor() {
+  /** `enlarge(keyframe, camera)` opens the larger view on that image. */
+  constructor(private readonly enlarge: (keyframe: number, camera: number) => void) {
     this.el = h("section", { class: "images-panel", "aria-label": "Images", "data-testid": "images-panel", hidden: true });
   }
 
@@ -64,13 +65,15 @@ export class ImagesPanel {
       e.preventDefault();
       this.step(e.deltaY > 0 ? 1 : -1);
     }, { passive: false });
+    const big = h("button", { type: "button", class: "enlarge", title: "Larger view: step through the run's images", onclick: () => this.enlarge(kf.index, this.at) }, img);
     this.el.replaceChildren(
       head,
-      h("a", { href: api.imageUrl(id), target: "_blank", rel: "noopener" }, img),
+      big,
       h("div", { class: "row" },
         h("button", { type: "button", onclick: () => this.step(-1), disabled: n < 2, "aria-label": "Previous camera image" }, "‹"),
         h("span", { "data-testid": "image-count" }, `Camera image ${this.at + 1} of ${n}`),
-        h("button", { type: "button", onclick: () => this.step(+1), disabled: n < 2, "aria-label": "Next camera image" }, "›")),
+        h("button", { type: "button", onclick: () => this.step(+1), disabled: n < 2, "aria-label": "Next camera image" }, "›"),
+        h("button", { type: "button", "data-testid": "images-enlarge", onclick: () => this.enlarge(kf.index, this.at) }, "Larger view")),
       m ? h("p", { class: "muted" }, m.filename) : "",
       meta,
       exif ? h("p", { class: "muted" }, exif.slice(3)) : "",

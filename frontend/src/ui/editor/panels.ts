@@ -1,6 +1,6 @@
 /** Small DOM panels of the correction view, each a pure function of editor state. */
-import { STATUS_COLORS, STATUS_LABELS } from "../../map/features";
-import { type EditorState, type KeyframeStatus, currentDrift, currentEdits, editCount, keyframeStatuses } from "../../state/editor";
+import { OFFROAD_COLOR, STATUS_COLORS, STATUS_LABELS, SUGGESTION_COLOR } from "../../map/features";
+import { type EditorState, type KeyframeStatus, currentDrift, currentEdits, currentSuggestions, editCount, keyframeStatuses } from "../../state/editor";
 import { canRedo, canUndo, redoLabel, undoLabel } from "../../state/history";
 import { h } from "../dom";
 import type { Drift } from "../../state/types";
@@ -20,7 +20,21 @@ export function legend(s: EditorState): HTMLElement {
     )),
     h("div", { class: "legend-line" }, h("span", { class: "line-swatch" }), "Corrected track (arrows: travel order)"),
     s.showGhost ? h("div", { class: "legend-line" }, h("span", { class: "line-swatch ghost" }), "Loaded revision (ghost)") : null,
+    suggestionLegend(s),
   );
+}
+
+/** The suggestion layer's marks, while it is on the map. */
+function suggestionLegend(s: EditorState): HTMLElement | null {
+  const g = currentSuggestions(s);
+  if (g.kind !== "ready" || !g.shown) return null;
+  const ring = (color: string, fill: string) => h("span", { class: "swatch", style: { background: fill, boxShadow: `0 0 0 2px ${color}` } });
+  return h("div", { "data-testid": "legend-suggestions" },
+    h("strong", {}, "Suggestions"),
+    h("ul", {},
+      h("li", {}, ring(SUGGESTION_COLOR, "#fff"), "Suggested position (click to pick)"),
+      h("li", {}, ring(SUGGESTION_COLOR, SUGGESTION_COLOR), "Accepted suggestion"),
+      h("li", {}, ring(OFFROAD_COLOR, "transparent"), "Off-road keyframe")));
 }
 
 export function statusBar(s: EditorState): string {

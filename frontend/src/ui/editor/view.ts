@@ -7,7 +7,7 @@ import type { Map as MlMap } from "maplibre-gl";
 import { dismissRefusal, nudgeSelected, select, selectNextAdjustable, selectStep, toggleGhost } from "../../actions/editor";
 import { actionAcceptAsIs, actionMarkDeleted, actionReset, actionRestore, actionUnmove } from "../../actions/edits";
 import { api } from "../../api/endpoints";
-import { type EditorCommand, installEditorKeys, nudgeVector } from "../../behaviors/keyboard";
+import { EDITOR_SHORTCUTS, type EditorCommand, installEditorKeys, nudgeVector } from "../../behaviors/keyboard";
 import { MapAdapter } from "../../map/adapter";
 import { createMap } from "../../map/createMap";
 import { bounds } from "../../map/features";
@@ -16,27 +16,29 @@ import { ModeManager } from "../../modes/manager";
 import { type EditorState, correctionMagnitudes, currentEdits, displayPositions, editCount, keyframeStatuses } from "../../state/editor";
 import type { AppContext } from "../context";
 import { h } from "../dom";
+import { keyCaps } from "../help";
 import { basemapOptions, basemapSwitcher, initialBasemap, mapErrorMessage, showBasemap, zoomNote } from "./basemap";
 import { CorrectionChart } from "./chart";
 import { ConflictPanel } from "./conflict";
 import { EditorController } from "./controller";
+import { ExportMenu } from "./export";
 import { FailedEditNotice } from "./failed";
 import { ImagesPanel } from "./images";
+import { ImageViewer } from "./imageViewer";
+import { imageSequence } from "../../actions/images";
 import { HistoryPanel } from "./history";
 import { driftInfo, legend, selectionInfo, statusBar } from "./panels";
 import { RangeConfirm } from "./rangeConfirm";
 import { RefusalView } from "./refusal";
 import { EditorToolbar, type SubmitOptions } from "./toolbar";
+import { TourCard } from "./tour";
 
+/** The side panel's key list, from the one shortcut table (the `?` overlay shows it all). */
 function keysHelp(): HTMLElement {
-  return h("ul", { class: "keys" },
-    h("li", {}, h("kbd", {}, "."), " / ", h("kbd", {}, ","), " next / previous keyframe"),
+  return h("ul", { class: "keys", "data-testid": "keys-help" },
+    ...EDITOR_SHORTCUTS.filter((k) => !k.when).map((k) => h("li", {}, ...keyCaps(k.keys), ` ${k.what}`)),
     h("li", {}, h("kbd", {}, "←"), h("kbd", {}, "↑"), h("kbd", {}, "→"), h("kbd", {}, "↓"), " nudge the selected keyframe 0.5 m (", h("kbd", {}, "Shift"), " 5 m)"),
-    h("li", {}, h("kbd", {}, "A"), " next adjustable keyframe"),
-    h("li", {}, h("kbd", {}, "Ctrl+Z"), " undo, ", h("kbd", {}, "Ctrl+Shift+Z"), " redo"),
-    h("li", {}, h("kbd", {}, "Del"), " delete / restore, ", h("kbd", {}, "R"), " delete a range"),
-    h("li", {}, h("kbd", {}, "I"), " images, ", h("kbd", {}, "G"), " ghost, ", h("kbd", {}, "F"), " fit, ", h("kbd", {}, "H"), " history, ", h("kbd", {}, "Esc"), " cancel"),
-  );
+    h("li", {}, h("kbd", {}, "?"), " every shortcut"));
 }
 
 export function renderEditor(main: HTMLElement, app: AppContext, runId: string, onController?: (ctl: EditorController) => void, submitOpts?: SubmitOptions): () => void {
@@ -61,6 +63,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
   };
   const suggest = new SuggestionsPanel(ctl, notify);
   cleanups.push(() => suggest.dispose());
+  const exportMenu = new ExportMenu(runId);
   const toolbar = new EditorToolbar({
     undo: () => ctl.undo(),
     redo: () => ctl.redo(),
@@ -75,7 +78,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     submit: (comment) => void ctl.submit(comment).then(() => {
       if (editCount(currentEdits(store.get())) === 0) toolbar.comment.value = "";
     }),
-  }, suggest.elements, submitOpts);
+  }, [exportMenu.el, ...suggest.elements], submitOpts);
 
   const mapEl = h("div", { class: "map", id: "map", "aria-label": "Map of the run; drag keyframes to correct them", role: "application", tabindex: "0" });
   const legendBox = h("div", { class: "legend-box" });
@@ -86,12 +89,24 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
 
   const history = new HistoryPanel(ctl, store, app.user?.role ?? null);
   const selBox = h("div");
-  const images = new ImagesPanel();
+  const images = new ImagesPanel((kf, camera) => openViewer(kf, camera));
+  const viewer = new ImageViewer((kf) => {
+    store.update((x) => select(x, kf));
+    followKeyframe(kf);
+  }, () => map?.setPadding({ top: 0, bottom: 0, left: 0, right: 0 }));
+  cleanups.push(() => viewer.dispose());
   const driftBox = h("div");
   const errorBox = h("div", { class: "error-box", role: "alert", "data-testid": "error", hidden: true });
+  const tour = new TourCard((step) => {
+    if (step) root.dataset.tourStep = step;
+    else delete root.dataset.tourStep;
+  });
+  cleanups.push(() => tour.dispose());
   const side = h("aside", { class: "side", "aria-label": "Keyframe details" },
+    tour.el,
     history.el,
     h("h2", {}, "Selected keyframe"), selBox,
+    suggest.listEl,
     images.el,
     h("h2", {}, "Drift"), driftBox,
     h("h2", {}, "Keys"), keysHelp(),
@@ -135,6 +150,22 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     images.t0_s = s.doc.keyframes[0]?.t_s ?? 0;
     images.open(s.doc.keyframes[i], currentEdits(s).moves.get(i) ?? s.doc.keyframes[i].lonlat);
   }
+  /** The larger view of the run's images, starting at keyframe `kf`'s camera `camera`. */
+  function openViewer(kf: number, camera: number) {
+    const s = store.get();
+    if (!s.doc) return;
+    viewer.meta = images.meta;
+    if (!viewer.el.isConnected) mapWrap.append(viewer.el);
+    viewer.open(imageSequence(s.doc), kf, camera);
+    followKeyframe(kf);
+  }
+  /** Keep keyframe `i` in the part of the map the docked image view leaves visible. */
+  function followKeyframe(i: number) {
+    const s = store.get();
+    if (!map || !s.doc) return;
+    const right = viewer.isOpen ? viewer.el.offsetWidth + 16 : 0;
+    map.easeTo({ center: displayPositions(s)[i] as [number, number], padding: { top: 0, bottom: 0, left: 0, right }, duration: 250 });
+  }
   function toggleDeleteSelected() {
     const s = store.get();
     if (s.selected === null || !s.doc) return;
@@ -161,9 +192,14 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
       case "fit": fit(); break;
       case "history": history.toggle(); break;
       case "unmove": if (before.selected !== null) ctl.perform(actionUnmove(before.selected)); break;
+      case "suggestion-accept": suggest.acceptFocused(); break;
+      case "suggestion-skip": suggest.skip(); break;
+      case "suggestion-next": suggest.step(1); break;
+      case "suggestion-previous": suggest.step(-1); break;
       case "escape":
         store.update((x) => dismissRefusal(select(x, null)));
         images.close();
+        if (viewer.isOpen) viewer.close();
         rangeConfirm.close();
         break;
     }
@@ -230,6 +266,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
       fit(false);
     }
     toolbar.render(s);
+    exportMenu.render(s.doc?.name ?? "", s.doc?.revision ?? null, editCount(currentEdits(s)));
     statusEl.textContent = statusBar(s);
     root.dataset.revision = String(s.doc?.revision ?? "");
     root.dataset.unsaved = String(editCount(currentEdits(s)));
@@ -247,7 +284,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
       notices.replaceChildren();
     }
 
-    const heavy = !prev || prev.doc !== s.doc || currentEdits(prev) !== currentEdits(s) || prev.preview !== s.preview || prev.showGhost !== s.showGhost;
+    const heavy = !prev || prev.doc !== s.doc || currentEdits(prev) !== currentEdits(s) || prev.preview !== s.preview || prev.showGhost !== s.showGhost || prev.suggestions !== s.suggestions;
     if (heavy) {
       legendBox.replaceChildren(legend(s));
       driftBox.replaceChildren(driftInfo(s));
@@ -261,6 +298,8 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
     }
     if (prev?.selected !== s.selected && images.isOpen && s.selected !== null && s.doc) openImages(s.selected);
     if (!prev || prev.refusal !== s.refusal) refusal.show(s, map);
+    if (prev) tour.update(s, prev);
+    if (!prev || prev.doc?.rules !== s.doc?.rules) tour.show(s);
     if (prev && prev.doc?.revision !== s.doc?.revision && history.isOpen) void history.reload();
   }
   cleanups.push(store.subscribe((next, prev) => render(next, prev)));
