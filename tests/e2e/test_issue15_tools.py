@@ -25,7 +25,7 @@ def wait_editor(page, key: str, value: str, timeout: int = 30_000) -> None:
 
 
 def test_export_the_shown_revision_from_the_editor(server, context, run_id):
-    api_move(server, "op1", run_id, 10, 6.0, "for export")
+    api_move(server, "op1", run_id, 10, 2.0, "for export")
     page = context.new_page()
     login(page, server, "op1")  # an operator: export is not an admin's privilege
     open_run(page, server, run_id)
