@@ -152,6 +152,10 @@ def run_part(model, walks, survey, loo_survey, args, no_wifi_row: bool = True) -
 
     part = Part()
     fp_all = build_fingerprints(survey) if survey else None
+    if fp_all is not None:
+        cap = f"a walk's WiFi counts at most {1 / fp_all.walk_corr:.1f} fixes" if fp_all.walk_corr > 0 else "not measured"
+        print(f"  survey: {fp_all.p_xy_m.shape[0]} scans of {len(survey)} walks; f3 walk-long error correlation "
+              f"ρ = {fp_all.walk_corr:.2f} ({cap})")
     for w in walks:
         if w.waypoints.shape[0] < 2:
             continue

@@ -1,6 +1,6 @@
-"""Honest ellipses: the reported covariance scaled so that surveyed waypoints fall inside the
-2σ ellipse as often as a Gaussian's draws do (86.5 %), learned on the training walks and
-kept in the model file."""
+"""Honest ellipses: the reported covariance scaled so that 90 % of the training walks'
+surveyed waypoints fall inside the 2σ ellipse (a Gaussian's draws: 86.5 %), kept in the
+model file."""
 
 from pathlib import Path
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from posefix.mapmatch import build_model, load_model, read_walk, save_model, track_walk
-from posefix.mapmatch.evaluate import CHI2_2_COVER_2SIGMA, mahalanobis2_at_waypoints
+from posefix.mapmatch.evaluate import ELLIPSE_COVER, mahalanobis2_at_waypoints
 from posefix.mapmatch.learn import learn_ellipse_scale
 from posefix.mapmatch.model import ModelFormatError
 from posefix.mapmatch.viterbi import gaussian_summary
@@ -32,8 +32,8 @@ def test_learned_scale_makes_the_training_waypoints_covered_as_a_gaussian_would(
     cal = model.with_(ellipse_scale=scale)
     m2 = np.concatenate([mahalanobis2_at_waypoints(w.waypoints, track_walk(cal, w, start_xy_m=tuple(w.waypoints[0, 1:3])),
                                                    skip_first=True) for w in walks])
-    # The quantile was set at 4: as many inside as a Gaussian has (to one waypoint).
-    assert abs(np.mean(m2 <= 4.0 + 1e-9) - CHI2_2_COVER_2SIGMA) <= 1.0 / n + 1e-9
+    # The quantile was set at 4: the target share inside (to one waypoint).
+    assert abs(np.mean(m2 <= 4.0 + 1e-9) - ELLIPSE_COVER) <= 1.0 / n + 1e-9
     # Scaling is relative: learning again on the calibrated model changes nothing.
     again, _ = learn_ellipse_scale(cal, walks)
     assert np.isclose(again, scale, rtol=1e-6)

@@ -328,13 +328,14 @@ def learn_ellipse_scale(model, walks: list[Walk], heading: str = "rotation_vecto
     Each walk is tracked from its first waypoint as a user would (:func:`track_walk`, the
     walk's own calibration included) and the squared Mahalanobis distance m² of every later
     waypoint under the reported ellipse is measured (:func:`posefix.mapmatch.evaluate.mahalanobis2_at_waypoints`).
-    A calibrated 2-D Gaussian has 86.5 % of m² within 4, so ``s = q₈₆.₅(m²) / 4`` (relative to
-    the model's present scale; the quantile the target is set on, not the median: the errors
-    are heavier-tailed than a Gaussian). Why the posterior needs it: the CRF counts each step's
+    The scale puts :data:`posefix.mapmatch.evaluate.ELLIPSE_COVER` (90 %) of them inside the
+    2σ ellipse: ``s = q₉₀(m²) / 4`` (relative to the model's present scale; a quantile at the
+    target, not the median: the errors are heavier-tailed than a Gaussian; a calibrated
+    Gaussian would hold 86.5 %). Why the posterior needs it: the CRF counts each step's
     error as independent, but a walker's stride and heading errors persist over many steps,
     and the survey's own waypoints err by a metre or so. Without two waypoints anywhere: 1.
     """
-    from posefix.mapmatch.evaluate import CHI2_2_COVER_2SIGMA, mahalanobis2_at_waypoints
+    from posefix.mapmatch.evaluate import ELLIPSE_COVER, mahalanobis2_at_waypoints
     from posefix.mapmatch.tracker import track_walk
 
     m2 = []
@@ -346,5 +347,5 @@ def learn_ellipse_scale(model, walks: list[Walk], heading: str = "rotation_vecto
     m = np.concatenate(m2) if m2 else np.zeros(0)
     if m.size == 0:
         return float(model.ellipse_scale), 0
-    s = float(np.quantile(m, CHI2_2_COVER_2SIGMA)) / 4.0
+    s = float(np.quantile(m, ELLIPSE_COVER)) / 4.0
     return float(model.ellipse_scale * np.clip(s, *ELLIPSE_SCALE_BOUNDS)), int(m.size)
