@@ -19,19 +19,16 @@ work in log2(n) rounds of batched numpy operations instead of a loop over blocks
 and the right-hand side ``b'_i+-1 = b_i+-1 - G^T (L_i^-1 b_i)``; back-substitution gives
 ``x_i = L_i^-T (L_i^-1 b_i - G_l x_i-1 - G_r x_i+1)``.
 
-Small systems take this path so that a short ``posefix correct`` imports no scipy
-(``scipy.linalg`` costs about a quarter of a second of start-up, more than all its solves).
-From ``LAPACK_FROM_BLOCKS`` blocks on, LAPACK's banded Cholesky (``pbtrf``/``pbtrs``) is
-2-3x faster per factorisation and the import is then a small share of the run: the
-factor is LAPACK's there.  A matrix that is not positive definite raises
-``numpy.linalg.LinAlgError`` either way.
+It stands in for LAPACK's banded Cholesky (``pbtrf``/``pbtrs``) so that a correction imports
+no scipy: ``scipy.linalg`` costs about a quarter of a second of CPU at start-up, more than
+all the solves of a short run.  Per factorisation it is within about 2x of LAPACK from 60 to
+100,000 blocks (a whole one-hour run corrects in the same CPU time either way).  A matrix
+that is not positive definite raises ``numpy.linalg.LinAlgError``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import functools
 
 import numpy as np
 
@@ -46,15 +43,6 @@ class Round:
 
     Li: np.ndarray
     G: np.ndarray
-
-
-@dataclass(frozen=True)
-class BandFactor:
-    """LAPACK's upper band Cholesky factor cb (2b, n b) of a large system."""
-
-    cb: np.ndarray
-    n: int
-    b: int
 
 
 @dataclass(frozen=True)
@@ -77,8 +65,6 @@ DENSE_TAIL_BLOCKS = 8
 # Below this many blocks, numpy's batched LAPACK calls (one per block, but two calls in all)
 # beat the entry-by-entry loop (some 60 numpy calls whatever the batch).
 BATCHED_LAPACK_BELOW = 200
-# From this many blocks on, the factor is LAPACK's banded Cholesky (scipy).
-LAPACK_FROM_BLOCKS = 512
 
 
 def _inv_cholesky(D: np.ndarray) -> np.ndarray:
@@ -107,7 +93,7 @@ def _inv_cholesky(D: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(Li.transpose(2, 0, 1))
 
 
-def factor(D: np.ndarray, U: np.ndarray) -> Factor | BandFactor:
+def factor(D: np.ndarray, U: np.ndarray) -> Factor:
     """Factor the block-tridiagonal SPD matrix with diagonal blocks D (n, b, b) and upper
     blocks U (n-1, b, b) (``U[i] = A[i, i+1]``).  The inputs are not changed."""
     D = np.asarray(D, dtype=float)
@@ -115,8 +101,6 @@ def factor(D: np.ndarray, U: np.ndarray) -> Factor | BandFactor:
     n, b = D.shape[0], D.shape[1]
     if n == 0:
         raise ValueError("empty system")
-    if n >= LAPACK_FROM_BLOCKS:
-        return _lapack_factor(to_upper_band(D, U), b)
     rounds = []
     while D.shape[0] > DENSE_TAIL_BLOCKS:
         m = D.shape[0]
@@ -148,21 +132,14 @@ def _dense(D: np.ndarray, U: np.ndarray) -> np.ndarray:
     return A.reshape(m * b, m * b)
 
 
-def factor_band(ab: np.ndarray, b: int) -> Factor | BandFactor:
-    """``factor`` of the matrix in LAPACK's upper band form ab (2b, n b) (overwritten when large)."""
-    if ab.shape[1] // b >= LAPACK_FROM_BLOCKS:
-        return _lapack_factor(ab, b)
+def factor_band(ab: np.ndarray, b: int) -> Factor:
+    """``factor`` of the matrix in LAPACK's upper band form ab (2b, n b)."""
     return factor(*from_upper_band(ab, b))
 
 
-def solve(F: Factor | BandFactor, rhs: np.ndarray) -> np.ndarray:
+def solve(F: Factor, rhs: np.ndarray) -> np.ndarray:
     """x with A x = rhs for A factored in F; rhs (n b,) or (n b, k) (block by block, as the state)."""
     rhs = np.asarray(rhs, dtype=float)
-    if isinstance(F, BandFactor):
-        x, info = _lapack()[1](F.cb, rhs, lower=0)
-        if info < 0:
-            raise ValueError(f"illegal value in argument {-info} of pbtrs")
-        return x
     shape = rhs.shape
     b = F.b
     y = rhs.reshape(F.n, b, -1)
@@ -230,33 +207,3 @@ def upper_band_matvec(ab: np.ndarray, v: np.ndarray) -> np.ndarray:
         out[d:] += a * v[:-d]
     return out
 
-
-def to_upper_band(D: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """LAPACK's upper band form (2b, n b) of the block-tridiagonal matrix D, U (Fortran order)."""
-    n, b = D.shape[0], D.shape[1]
-    bw = 2 * b - 1
-    i, j = np.meshgrid(np.arange(b), np.arange(b), indexing="ij")
-    up = i <= j
-    ab = np.zeros((bw + 1, n * b), order="F")
-    blk = np.arange(n)[:, None]
-    ab[(bw + i - j)[up][None, :], blk * b + j[up][None, :]] = D[:, i[up], j[up]]
-    if n > 1:
-        ab[(bw + i - b - j).ravel()[None, :], (blk[:-1] + 1) * b + j.ravel()[None, :]] = U.reshape(n - 1, b * b)
-    return ab
-
-
-@functools.cache
-def _lapack():
-    """LAPACK's banded Cholesky factorisation and solve with its factor (scipy, imported on first use)."""
-    from scipy.linalg import get_lapack_funcs
-
-    return get_lapack_funcs(("pbtrf", "pbtrs"), (np.zeros(1),))
-
-
-def _lapack_factor(ab: np.ndarray, b: int) -> BandFactor:
-    cb, info = _lapack()[0](ab, lower=0, overwrite_ab=1)
-    if info > 0:
-        raise LinAlgError(f"{info}th leading minor not positive definite")
-    if info < 0:
-        raise ValueError(f"illegal value in argument {-info} of pbtrf")
-    return BandFactor(cb, ab.shape[1] // b, b)

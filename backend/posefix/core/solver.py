@@ -7,7 +7,7 @@ Two paths reach the same minimum:
   keyframes, so with the state ordered keyframe by keyframe (6 unknowns each) ``J^T J`` is
   symmetric block-tridiagonal: a band of 11 super-diagonals.  It is stored in LAPACK's
   upper banded form and factorised by ``banded.factor`` (block cyclic reduction: Cholesky in
-  an odd-even order, O(k * 6^3), numpy only; LAPACK's banded Cholesky for long runs).  The robust location loss is already inside the residual (see terms.py), so
+  an odd-even order, O(k * 6^3), numpy only).  The robust location loss is already inside the residual (see terms.py), so
   the Gauss-Newton model is that of the exact cost; the gain ratio steers lambda
   (Nielsen's rule: lambda *= max(1/3, 1 - (2 rho - 1)^3) on success, *= nu, nu *= 2 on failure).
 * ``solver_reference.solve_scipy`` (reference path; ``solver_reference.solve`` dispatches between the two): ``scipy.optimize.least_squares`` (trust region
@@ -339,12 +339,12 @@ def solve_banded(
     )
 
 
-def factor_banded_spd(ab: np.ndarray) -> banded.Factor | banded.BandFactor:
-    """Factor of A symmetric positive definite given in upper band form ab (12, 6k); may overwrite ab."""
+def factor_banded_spd(ab: np.ndarray) -> banded.Factor:
+    """Factor of A symmetric positive definite given in upper band form ab (12, 6k)."""
     return banded.factor_band(ab, 6)
 
 
-def solve_with_factor(c: banded.Factor | banded.BandFactor, b: np.ndarray) -> np.ndarray:
+def solve_with_factor(c: banded.Factor, b: np.ndarray) -> np.ndarray:
     """Solve A x = b given the factor of A (``factor_banded_spd``)."""
     return banded.solve(c, b)
 
