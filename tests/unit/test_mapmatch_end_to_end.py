@@ -89,6 +89,11 @@ def test_cli_train_learns_the_step_scale_unless_told_not_to(model, tmp_path):
     h0 = load_model(tmp_path / "m0.npz").step_model.height_m
     assert h0 == model.step_model.height_m
     assert 0.7 <= h1 / h0 <= 1.4 and h1 != h0
+    # The ellipse scale is learned too (reported, kept in the file) unless told not to.
+    assert "ellipse_scale:" in out.output and load_model(tmp_path / "m0.npz").ellipse_scale != 1.0
+    out = r.invoke(app, base + ["--no-ellipse", "--output", str(tmp_path / "m2.npz")])
+    assert out.exit_code == 0 and "ellipse_scale:" not in out.output
+    assert load_model(tmp_path / "m2.npz").ellipse_scale == 1.0
 
 
 def test_cli_track_with_fingerprints_takes_the_wifi_correlation_time(model, tmp_path):

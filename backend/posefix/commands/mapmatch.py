@@ -98,7 +98,8 @@ def fingerprints(floor: Path, walks: tuple[Path, ...], output: Path) -> None:
         click.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points "
                    f"({fp.n_fitted_aps} with a fitted position), {len(fp.peak_xy_m)} peaks; "
                    f"covariance scale {fp.cov_scale:.2f} (held-out calibration), outlier rate "
-                   f"{fp.outlier_frac:.2f}; {size / 1024:.1f} KiB -> {output}")
+                   f"{fp.outlier_frac:.2f}, walk-long error correlation {fp.walk_corr:.2f}; "
+                   f"{size / 1024:.1f} KiB -> {output}")
 
 
 @mm.command("train", context_settings=CONTEXT)
@@ -109,9 +110,10 @@ def fingerprints(floor: Path, walks: tuple[Path, ...], output: Path) -> None:
 @click.option("--step-em/--no-step-em", default=False, help="Learn the step constant gamma (m) by hard EM.")
 @click.option("--weights/--no-weights", default=True, help="Learn the weights of f1, f2 by conditional likelihood.")
 @click.option("--step-scale/--no-step-scale", default=True, help="Scale step lengths by surveyed / dead-reckoned distance between waypoints.")
+@click.option("--ellipse/--no-ellipse", default=True, help="Scale the reported ellipses so 90 % of these walks' waypoints fall inside 2 sigma.")
 def train(model_path: Path, walks: tuple[Path, ...], output: Path, heading_bias: bool, step_em: bool, weights: bool,
-          step_scale: bool) -> None:
-    """Learn heading bias, step-length scale, step constants and feature weights from surveyed walks.
+          step_scale: bool, ellipse: bool) -> None:
+    """Learn heading bias, step-length scale, step constants, feature weights and the ellipse scale from surveyed walks.
 
     Each walk starts at its first waypoint; the waypoints clamp the likelihood (within 2 m).
     """
@@ -126,7 +128,7 @@ def train(model_path: Path, walks: tuple[Path, ...], output: Path, heading_bias:
         ws = [read_walk(w) for w in tqdm(walks, desc="reading walks", unit="walk")]
         bar = tqdm(total=3, desc="training", unit="stage")
         model2, report = train_model(model, ws, heading_bias=heading_bias, step_em=step_em, weights=weights,
-                                     progress=lambda: bar.update(1), step_scale=step_scale)
+                                     progress=lambda: bar.update(1), step_scale=step_scale, ellipse=ellipse)
         bar.close()
         with _atomic(output, ".npz") as tmp:
             size = save_model(model2, tmp)
