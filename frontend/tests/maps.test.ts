@@ -110,4 +110,20 @@ describe("floor view geometry", () => {
     const track = { steps: [step, { ...step, x_m: 100, dr_x_m: 104 }], errors: { n: 0, mean_m: null, median_m: null, p95_m: null, max_m: null, skip_first: false, waypoints: [] }, walk: { file: "w", n_steps: 1, start: "unknown", track_ms: 1, ms_per_step: 1 } };
     expect(walkBox(track, 5, 30)).toEqual([45, 25, 109, 55]);
   });
+
+  it("places the floor on the map: by its georeference, else in its own metric frame", async () => {
+    const { floorCorners, floorLonLat, walkFeatures } = await import("../src/maps/floorView");
+    const geo = { georef: [24.9, 60.1, 1e-5, 5e-6], width_m: 40, height_m: 20 };
+    expect(floorLonLat(geo, 10, 4)).toEqual([24.9 + 1e-4, 60.1 + 2e-5]);
+    expect(floorCorners(geo)).toEqual([floorLonLat(geo, 0, 20), floorLonLat(geo, 40, 20), floorLonLat(geo, 40, 0), [24.9, 60.1]]);
+    const local = { georef: null, width_m: 40, height_m: 20 };
+    expect(floorLonLat(local, 111_320, 0)[0]).toBeCloseTo(1, 12);
+    const step = { i: 0, t_ms: 0, x_m: 1, y_m: 2, dr_x_m: 1, dr_y_m: 2, sigma_major_m: 1, sigma_minor_m: 1, angle_deg: 0 };
+    const track = { steps: [step, { ...step, x_m: 3 }, { ...step, x_m: 5 }], errors: { n: 0, mean_m: null, median_m: null, p95_m: null, max_m: null, skip_first: false, waypoints: [] }, walk: { file: "w", n_steps: 3, start: "unknown", track_ms: 1, ms_per_step: 1 } };
+    const fc = walkFeatures(geo, track, 1);
+    const matched = fc.features.find((f) => f.properties?.kind === "matched")!.geometry as GeoJSON.LineString;
+    expect(matched.coordinates).toEqual([floorLonLat(geo, 1, 2), floorLonLat(geo, 3, 2)]);
+    expect((fc.features.find((f) => f.properties?.kind === "position")!.geometry as GeoJSON.Point).coordinates).toEqual(floorLonLat(geo, 3, 2));
+    expect(walkFeatures(geo, null, 0).features).toEqual([]);
+  });
 });

@@ -32,6 +32,8 @@ export async function fetchStyle(): Promise<{ style: StyleSpecification; note: s
 }
 
 export interface MapOptions {
+  /** A style of the page's own instead of the server's basemap (e.g. a floor in its own frame). */
+  style?: StyleSpecification;
   center?: [number, number];
   zoom?: number;
   /** Zoom/rotate buttons (top left). */
@@ -55,7 +57,7 @@ export interface CreatedMap {
 
 export async function createMap(container: HTMLElement, opts: MapOptions = {}): Promise<CreatedMap | null> {
   maplibregl.setWorkerUrl(workerUrl);
-  const { style, note } = await fetchStyle();
+  const { style, note } = opts.style ? { style: opts.style, note: null } : await fetchStyle();
   if (opts.alive && !opts.alive()) return null;
   const map = new maplibregl.Map({
     container,

@@ -15,6 +15,7 @@ import { WalkFormatError, parseWalk } from "../tracker/sensors";
 import type { Mode } from "../tracker/modes";
 import { trackWalk } from "../tracker/tracker";
 import { floorModel, liveTrack, walkTrackFromRun } from "./deviceTrack";
+import { FloorMap } from "./floorMap";
 import { ellipsePx, fitBox, fmtM, fromPx, parseStart, reachedWaypoints, toPx, walkBox, type View } from "./floorView";
 import { keepFloorsOffline, keepForOffline } from "./offline";
 import { askMotionPermission, listenSensors } from "./trackMe";
@@ -124,6 +125,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   let modes: Mode[] | null = null; // a live session's modes while it has not converged
   let live: { session: LiveSession; stop: () => void } | null = null;
 
+  const floorMap = new FloorMap(() => alive);
   const title = h("h1", {}, "Floor plan");
   const meta = h("p", { class: "floor-meta", "data-testid": "floor-meta" });
   const canvas = h("canvas", { class: "floor-canvas", width: 900, height: 660, "data-testid": "floor-canvas", "aria-label": "Floor plan with the tracked walk" });
@@ -158,7 +160,8 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     h("p", {}, h("a", { href: "#/floors" }, "← Floor plans")), title, meta,
     h("div", { class: "floor-body" },
       h("div", { class: "floor-left" }, canvas,
-        h("div", { class: "replay", role: "group", "aria-label": "Replay" }, play, scrub, stepLabel, zoomBtn)),
+        h("div", { class: "replay", role: "group", "aria-label": "Replay" }, play, scrub, stepLabel, zoomBtn),
+        h("h2", {}, "On the map"), floorMap.el),
       h("aside", { class: "floor-side" },
         h("h2", {}, "Track me"),
         h("p", {}, "Tracks this phone from its motion sensors, in the browser. Tap your start on the map (or leave it empty: the page then shows every place the steps fit). Works offline once this page and the model are loaded."),
@@ -168,6 +171,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
         h("table", { class: "floor-table" }, h("thead", {}, h("tr", {}, h("th", {}, "Waypoint"), h("th", {}, "CRF error"), h("th", {}, "Dead reckoning"))), errTable)))));
 
   function draw() {
+    if (fp) floorMap.render(fp, track, step);
     const c = canvas.getContext("2d");
     if (!c || !fp) return;
     const box: [number, number, number, number] = zoomed && track ? walkBox(track) : [0, 0, fp.width_m, fp.height_m];
@@ -458,6 +462,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       keepForOffline(["/api/v1/auth/me", `/api/v1/floorplans/${fp.id}`, mapsApi.imageUrl(fp.id), mapsApi.modelUrl(fp.id)]);
     }
     if (fp.status !== "ready") msg.textContent = fp.status === "failed" ? `The model failed: ${fp.error}` : "The model is being built; reload in a moment.";
+    void floorMap.show(fp, fp.has_image ? mapsApi.imageUrl(fp.id) : null);
     if (fp.has_image) {
       image = new Image();
       image.onload = () => {
@@ -472,6 +477,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     alive = false;
     stop();
     stopLive();
+    floorMap.remove();
   };
 }
 

@@ -1,8 +1,9 @@
 /**
  * Pure geometry of the floor view: floor metres (x east, y north, origin at the floor's
- * south-west corner) <-> canvas pixels (y down), and the replay's derived values. No DOM.
+ * south-west corner) <-> canvas pixels (y down) and <-> lon/lat (the map view), and the
+ * replay's derived values. No DOM.
  */
-import type { WalkStep, WalkTrack, WaypointError } from "./api";
+import type { FloorPlan, WalkStep, WalkTrack, WaypointError } from "./api";
 
 export interface View {
   scale: number; // px per metre
@@ -72,4 +73,39 @@ export function reachedWaypoints(track: WalkTrack, i: number): WaypointError[] {
 
 export function fmtM(v: number | null | undefined): string {
   return v === null || v === undefined || !Number.isFinite(v) ? "–" : `${v.toFixed(2)} m`;
+}
+
+const M_PER_DEG = 111_320;
+
+/** Floor metres (x east, y north from the floor's south-west corner) to [lon, lat]. */
+export function floorLonLat(fp: Pick<FloorPlan, "georef">, x_m: number, y_m: number): [number, number] {
+  const g = fp.georef;
+  // Without a georeference the floor keeps its own frame: a metre is 1/111,320 degree near (0, 0).
+  if (!g || g.length !== 4) return [x_m / M_PER_DEG, y_m / M_PER_DEG];
+  return [g[0] + x_m * g[2], g[1] + y_m * g[3]];
+}
+
+/** The floor's corners, top-left first and clockwise (MapLibre's image source order). */
+type LonLat = [number, number];
+
+export function floorCorners(fp: Pick<FloorPlan, "georef" | "width_m" | "height_m">): [LonLat, LonLat, LonLat, LonLat] {
+  const { width_m: w, height_m: hh } = fp;
+  return [floorLonLat(fp, 0, hh), floorLonLat(fp, w, hh), floorLonLat(fp, w, 0), floorLonLat(fp, 0, 0)];
+}
+
+type Line = GeoJSON.Feature<GeoJSON.LineString | GeoJSON.Point | GeoJSON.Polygon, { kind: string }>;
+
+/** What to draw of a walk up to step `n`. */
+export function walkFeatures(fp: Pick<FloorPlan, "georef">, track: WalkTrack | null, n: number): GeoJSON.FeatureCollection {
+  const features: Line[] = [];
+  if (track && track.steps.length) {
+    const upto = track.steps.slice(0, Math.min(n, track.steps.length - 1) + 1);
+    const line = (kind: string, pts: [number, number][]) =>
+      features.push({ type: "Feature", properties: { kind }, geometry: { type: "LineString", coordinates: pts } });
+    line("dr", upto.filter((s) => Number.isFinite(s.dr_x_m)).map((s) => floorLonLat(fp, s.dr_x_m, s.dr_y_m)));
+    line("matched", upto.map((s) => floorLonLat(fp, s.x_m, s.y_m)));
+    const cur = upto[upto.length - 1];
+    features.push({ type: "Feature", properties: { kind: "position" }, geometry: { type: "Point", coordinates: floorLonLat(fp, cur.x_m, cur.y_m) } });
+  }
+  return { type: "FeatureCollection", features };
 }
