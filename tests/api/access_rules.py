@@ -8,9 +8,9 @@ asks every route as every principal against a seeded app (see its docstring for 
 on SQLite and PostgreSQL. ``python -m tests.api.access_rules --write`` writes the table into
 docs/SECURITY.md between the markers; ``--check`` fails when the page differs.
 
-Where the seeded world has no such resource (images, floorplans, drawing sessions, a tile
-source), the cell is the answer for an absent id, which still proves the role check comes first
-where it says 401 or 403.
+Every id the test asks with names a real seeded object (a run with an image, a floor plan with
+its model, a tracking session, a tile source with a live upstream), so each cell shows how the
+object's owner and the caller's role are judged, not how an absent id answers.
 """
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ RULES: dict[tuple[str, str], str] = {
     ("GET", "/api/v1/runs/{run_id}/history"):                        "401 ok 404 404 ok ok ok ok ok",
     ("POST", "/api/v1/runs/{run_id}/review"):                        "401 403 403 403 403 ok ok 403 ok",
     ("GET", "/api/v1/runs/{run_id}/images"):                         "401 ok 404 404 ok ok ok ok ok",
-    ("GET", "/api/v1/images/{image_id}"):                            "401 404 404 404 404 404 404 404 404",
-    ("GET", "/api/v1/images/{image_id}/thumbnail"):                  "401 404 404 404 404 404 404 404 404",
+    ("GET", "/api/v1/images/{image_id}"):                            "401 ok 404 404 ok ok ok ok ok",
+    ("GET", "/api/v1/images/{image_id}/thumbnail"):                  "401 ok 404 404 ok ok ok ok ok",
     ("POST", "/api/v1/runs/{run_id}/preview"):                       "401 ok 404 404 ok ok ok 403 ok",
     ("POST", "/api/v1/runs/{run_id}/edits"):                         "401 403 404 404 ok ok ok 403 ok",
     ("GET", "/api/v1/runs/{run_id}/edits"):                          "401 ok 404 404 ok ok ok ok ok",
@@ -61,8 +61,8 @@ RULES: dict[tuple[str, str], str] = {
     ("GET", "/api/v1/events"):                                       "401 ok ok ok ok ok ok ok ok",
     ("GET", "/api/v1/tile-sources"):                                 "401 ok ok ok ok ok ok ok ok",
     ("POST", "/api/v1/tile-sources"):                                "401 403 403 403 403 403 ok 403 ok",
-    ("GET", "/api/v1/tile-sources/{ref}"):                           "401 404 404 404 404 404 404 404 404",
-    ("GET", "/api/v1/tiles/{source}/{z}/{x}/{y}.{ext}"):             "401 404 404 404 404 404 404 404 404",
+    ("GET", "/api/v1/tile-sources/{ref}"):                           "401 ok ok ok ok ok ok ok ok",
+    ("GET", "/api/v1/tiles/{source}/{z}/{x}/{y}.{ext}"):             "401 ok ok ok ok ok ok ok ok",
     ("GET", "/api/v1/map/style.json"):                               "401 ok ok ok ok ok ok ok ok",
     ("POST", "/api/v1/tasks"):                                       "401 403 403 403 403 403 ok 403 ok",
     ("GET", "/api/v1/tasks"):                                        "401 403 403 403 ok ok ok ok ok",
@@ -87,19 +87,19 @@ RULES: dict[tuple[str, str], str] = {
     ("POST", "/api/v1/gold-runs"):                                   "401 403 403 403 403 403 ok 403 ok",
     ("POST", "/api/v1/floorplans"):                                  "401 403 403 403 403 403 ok 403 ok",
     ("GET", "/api/v1/floorplans"):                                   "401 ok ok ok ok ok ok ok ok",
-    ("GET", "/api/v1/floorplans/{floorplan_id}"):                    "401 404 404 404 404 404 404 404 404",
-    ("GET", "/api/v1/floorplans/{floorplan_id}/model"):              "401 404 404 404 404 404 404 404 404",
-    ("GET", "/api/v1/floorplans/{floorplan_id}/image"):              "401 404 404 404 404 404 404 404 404",
-    ("POST", "/api/v1/floorplans/{floorplan_id}/walks"):             "401 404 404 404 404 404 404 403 404",
-    ("POST", "/api/v1/floorplans/{floorplan_id}/sessions"):          "401 404 404 404 404 404 404 403 404",
-    ("POST", "/api/v1/sessions/{session_id}/steps"):                 "401 ok ok ok ok ok ok 403 ok",
+    ("GET", "/api/v1/floorplans/{floorplan_id}"):                    "401 ok ok ok ok ok ok ok ok",
+    ("GET", "/api/v1/floorplans/{floorplan_id}/model"):              "401 ok ok ok ok ok ok ok ok",
+    ("GET", "/api/v1/floorplans/{floorplan_id}/image"):              "401 ok ok ok ok ok ok ok ok",
+    ("POST", "/api/v1/floorplans/{floorplan_id}/walks"):             "401 ok ok ok ok ok ok 403 ok",
+    ("POST", "/api/v1/floorplans/{floorplan_id}/sessions"):          "401 ok ok ok ok ok ok 403 ok",
+    ("POST", "/api/v1/sessions/{session_id}/steps"):                 "401 ok 404 404 404 404 404 403 404",
     ("POST", "/api/v1/runs/{run_id}/suggestions"):                   "401 ok 404 404 ok ok ok 403 ok",
     ("DELETE", "/api/v1/tokens/{token_id}"):                         "401 404 404 404 404 404 ok 403 ok",
     ("DELETE", "/api/v1/runs/{run_id}"):                             "401 403 403 403 403 403 ok 403 ok",
-    ("DELETE", "/api/v1/tile-sources/{ref}"):                        "401 403 403 403 403 403 404 403 404",
+    ("DELETE", "/api/v1/tile-sources/{ref}"):                        "401 403 403 403 403 403 ok 403 ok",
     ("DELETE", "/api/v1/operators/{user_id}/qualifications/{name}"): "401 403 403 403 403 403 ok 403 ok",
-    ("DELETE", "/api/v1/floorplans/{floorplan_id}"):                 "401 403 403 403 403 403 404 403 404",
-    ("DELETE", "/api/v1/sessions/{session_id}"):                     "401 404 404 404 404 404 404 403 404",
+    ("DELETE", "/api/v1/floorplans/{floorplan_id}"):                 "401 403 403 403 403 403 ok 403 ok",
+    ("DELETE", "/api/v1/sessions/{session_id}"):                     "401 ok 404 404 404 404 404 403 404",
     ("POST", "/api/v1/auth/logout"):                                 "401 ok ok ok ok ok ok 403 ok",
     ("POST", "/api/v1/tasks/{task_id}/cancel"):                      "401 403 403 403 403 403 ok 403 ok",
     ("POST", "/api/v1/assignments/{assignment_id}/return"):          "401 ok 404 404 404 404 404 403 404",
@@ -126,8 +126,7 @@ PRINCIPAL_NOTE = (
     "`401` no credentials, `403` refused by role, scope or the review rule, `404` hidden or absent. "
     "`op_own_task` holds the assignment of the task whose run is asked about, `op_other_task` one of another "
     "task, `op_no_task` none; `rev_own_work` edited that run, `rev_other_work` did not; the tokens are an admin's, "
-    "so their cells show the scope alone. Ids of resources the test does not seed (images, floorplans, drawing "
-    "sessions, tile sources) answer as absent."
+    "so their cells show the scope alone. The tracking session is `op_own`'s; every id names a real object."
 )
 
 
