@@ -18,7 +18,7 @@ import yaml
 from click.testing import CliRunner
 
 REPO = Path(__file__).resolve().parents[1]
-ENV = {"POSTGRES_PASSWORD": "pg-secret-for-test", "POSEFIX_SECRET_KEY": "s" * 48}
+ENV = {"POSTGRES_PASSWORD": "pg-secret-for-test", "POSEFIX_SECRET_KEY": "s" * 48, "MINIO_ROOT_PASSWORD": "m" * 40}
 # An empty env file, so a developer's own .env does not leak into the checks.
 EMPTY_ENV_FILE = REPO / "docker" / "test.env"
 
@@ -50,13 +50,14 @@ def config() -> dict:
 
 def test_services_and_replicas(config: dict) -> None:
     services = config["services"]
-    assert set(services) == {"postgres", "migrate", "api", "worker", "proxy"}
+    assert set(services) == {"postgres", "minio", "bucket", "migrate", "api", "worker", "proxy"}
+    assert services["minio"]["image"].startswith("minio/minio")
     assert services["api"]["deploy"]["replicas"] == 2
     assert services["worker"]["deploy"]["replicas"] == 2
     assert services["postgres"]["image"].startswith("postgres:")
 
 
-def test_api_and_workers_share_postgres_and_the_file_volume(config: dict) -> None:
+def test_api_and_workers_share_postgres_and_the_object_store(config: dict) -> None:
     services = config["services"]
     for name in ("api", "worker", "migrate"):
         env = services[name]["environment"]
@@ -67,7 +68,12 @@ def test_api_and_workers_share_postgres_and_the_file_volume(config: dict) -> Non
         assert mounts == ["/var/lib/posefix"], name
         assert services[name]["environment"]["POSEFIX_DATA_DIR"] == "/var/lib/posefix"
         assert services[name]["depends_on"]["migrate"]["condition"] == "service_completed_successfully"
-    assert {"pgdata", "files"} <= set(config["volumes"])
+        assert services[name]["depends_on"]["bucket"]["condition"] == "service_completed_successfully"
+        env = services[name]["environment"]
+        assert env["POSEFIX_FILES_URL"] == "s3://posefix/files" and env["POSEFIX_S3_ENDPOINT_URL"] == "http://minio:9000"
+        assert env["POSEFIX_S3_SECRET_ACCESS_KEY"] == services["minio"]["environment"]["MINIO_ROOT_PASSWORD"] == "m" * 40
+    assert "mb --ignore-existing local/posefix" in " ".join(services["bucket"]["entrypoint"])
+    assert {"pgdata", "objects", "var"} <= set(config["volumes"])
     assert services["worker"]["stop_grace_period"] in ("90s", "1m30s")
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Literal
 from urllib.parse import urlsplit
 
-from pydantic import Field, model_validator
+from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 __all__ = ["Settings", "DEFAULT_SECRET", "get_settings", "local_origins", "origin_of", "with_listen_origins"]
@@ -81,6 +81,18 @@ class Settings(BaseSettings):
     worker_poll_s: float = 1.0
     # On SQLite `posefix serve` runs a worker thread in the server process.
     embedded_worker: bool = True
+
+    # Where run files, images, solutions and floor plans live (posefix/filestore.py). Empty:
+    # the local folder <data_dir>/files. "s3://bucket/prefix": S3-compatible object storage
+    # (AWS S3, MinIO, ...), shared by API processes and workers on several machines.
+    files_url: str = ""
+    # The object store's endpoint (MinIO: http://minio:9000; empty: AWS) and region.
+    s3_endpoint_url: str = ""
+    s3_region: str = ""
+    # Credentials; unset: botocore's chain (AWS_ACCESS_KEY_ID..., profiles, instance roles).
+    # Secrets: never printed, logged or put in an error message.
+    s3_access_key_id: SecretStr | None = None
+    s3_secret_access_key: SecretStr | None = None
 
     # Keyframes GeoJSON: at most this many vertices in the decimated line.
     line_max_points: int = 5000

@@ -27,6 +27,7 @@ from posefix.config import Settings
 from posefix.db import Database
 from posefix.deps import refuse_nul
 from posefix.errors import install_error_handlers
+from posefix.filestore import file_store
 from posefix.edits.failures import failed_edits
 from posefix.hardening import BodyTimeoutMiddleware, SecurityHeadersMiddleware
 from posefix.runs.access import register_operator_runs, register_task_runs
@@ -141,7 +142,7 @@ def ops_router() -> APIRouter:
         try:
             with db.engine.connect() as conn:
                 conn.execute(text("SELECT 1"))
-            settings.files_dir.mkdir(parents=True, exist_ok=True)
+            file_store(settings).check()
         except Exception as exc:
             return JSONResponse(status_code=503, content={"error": "not_ready", "detail": str(exc)[:300]})
         return JSONResponse({"status": "ready"})

@@ -263,7 +263,7 @@ def kill_while_writing_revision(app, settings, rid: int, number: int, env: dict[
             worker.kill()
             worker.wait(timeout=30)
     assert [r.number for r in revision_rows(app, rid)] == list(range(number)), "killed after the commit"
-    return [p.name for p in storage.revision_files(fs, rid, number)]
+    return storage.revision_files(fs, rid, number)
 
 
 @pytest.mark.slow

@@ -33,6 +33,7 @@ from posefix.runs import solutions, storage
 from posefix.runs.engine_config import engine_config
 from posefix.runs import repository as runs_repo
 from posefix.runs.models import Revision, Run
+from posefix.filestore import file_store
 
 log = logging.getLogger("posefix.worker")
 
@@ -66,7 +67,7 @@ def compute_revision(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]
     except (KeyError, TypeError, ValueError):
         raise PermanentJobError(f"bad revision job payload {payload!r}") from None
     settings = ctx.settings
-    fs = storage.FileStore(settings.files_dir)
+    fs = file_store(settings)
     with ctx.db.transaction(write=False) as s:
         existing = runs_repo.revision(s, run_id, number)
         run = s.get(Run, run_id)
@@ -167,7 +168,7 @@ def sweep_dead_revision_jobs(db: Database, settings: Settings) -> int:
     """Once per dead revision job: remove its revision's files (they will never be committed),
     then fail its batch and roll the run's head back, which frees the revision's number (so
     the files go first); returns how many files were removed."""
-    fs = storage.FileStore(settings.files_dir)
+    fs = file_store(settings)
     with db.transaction(write=False) as s:
         dead = s.execute(
             select(Job.id, Job.payload, Job.last_error).where(Job.kind == REVISION_JOB, Job.status == JobStatus.dead,

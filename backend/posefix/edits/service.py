@@ -32,6 +32,7 @@ from posefix.runs.models import Revision, Run, RunStatus
 from posefix.runs.warm import load_problem, stored_solution
 from posefix.users.models import Role
 from posefix.users.service import Principal
+from posefix.filestore import file_store
 
 REVISION_JOB = "revision"
 
@@ -259,7 +260,7 @@ def ready(session: Session, run: Run, number: int) -> Revision:
 
 def diff(session: Session, settings: Settings, run: Run, a: int, b: int) -> dict[str, Any]:
     ra, rb = ready(session, run, a), ready(session, run, b)
-    fs = storage.FileStore(settings.files_dir)
+    fs = file_store(settings)
     ka, kb = storage.read_keyframes(fs, ra.keyframes_file), storage.read_keyframes(fs, rb.keyframes_file)
     d = horizontal_distance_m(ka.lon_deg, ka.lat_deg, kb.lon_deg, kb.lat_deg)
     changed = np.flatnonzero(d > 0.001)

@@ -10,7 +10,7 @@ from typing import Any
 from posefix.jobs.registry import JobContext, PermanentJobError, register
 from posefix.maps import repository as repo
 from posefix.maps.models import FloorPlanStatus
-from posefix.maps.service import BUILD_JOB, build_model_files
+from posefix.maps.service import BUILD_JOB, build_model
 from posefix.maps.suggestions import SUGGEST_JOB, suggest
 
 
@@ -23,9 +23,9 @@ def build_floorplan(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
         fp = repo.get(s, fid)
         if fp is None:
             raise PermanentJobError(f"floor plan {fid} is gone")
-        folder, source, cell_m = ctx.settings.files_dir / fp.folder, fp.source, fp.cell_m
+        s.expunge(fp)
     try:
-        out = build_model_files(folder, source, cell_m, ctx.progress)
+        out = build_model(ctx.settings, fp, ctx.progress)
     except (ValueError, OSError) as exc:
         # A floor that cannot become a model never will: record why and stop retrying.
         with ctx.db.transaction() as s:

@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 from posefix.config import Settings
 from posefix.db import on_commit, on_rollback
 from posefix.errors import BadRequest, Conflict, NotFound, PayloadTooLarge, Unprocessable
+from posefix.filestore import file_store
 from posefix.jobs import repository as jobs
 from posefix.mapmatch import api as mapmatch
 from posefix.maps import repository as repo
@@ -47,11 +48,12 @@ MAX_FLOOR_SIDE_M = 2000.0
 # ---- file store -----------------------------------------------------------------------
 
 def floor_dir(settings: Settings, fp: FloorPlan) -> Path:
-    return settings.files_dir / fp.folder
+    """A local folder with the floor plan's files (the store's own on local disk, else a cached copy)."""
+    return file_store(settings).local_copy(fp.folder)
 
 
 def staging_dir(settings: Settings) -> Path:
-    root = settings.files_dir / "tmp"
+    root = file_store(settings).staging_root
     root.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix="floor-", dir=root))
 
@@ -203,14 +205,14 @@ def create_floorplan(
         )
         repo.add(session, fp)
         fp.folder = f"floorplans/{fp.id}-{uuid.uuid4().hex[:8]}"
-        final = settings.files_dir / fp.folder
-        final.parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(str(files), final)
+        store = file_store(settings)
+        folder = fp.folder
+        on_rollback(session, lambda: store.remove_tree(folder))
+        store.put_tree(files, folder)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
-    on_rollback(session, lambda: shutil.rmtree(final, ignore_errors=True))
     if build_now:
-        out = build_model_files(final, fp.source, cell_m, lambda _f, _m=None: None)
+        out = build_model(settings, fp, lambda _f, _m=None: None)
         fp.status, fp.n_vertices, fp.model_bytes, fp.build_s = FloorPlanStatus.ready, out["n_vertices"], out["model_bytes"], out["build_s"]
         session.flush()
         return fp
@@ -231,12 +233,12 @@ def get_floorplan(session: Session, floorplan_id: int) -> FloorPlan:
 
 
 def delete_floorplan(session: Session, settings: Settings, fp: FloorPlan) -> None:
-    folder = floor_dir(settings, fp)
+    folder, store = fp.folder, file_store(settings)
     fid = fp.id
     repo.delete(session, fp)
 
     def remove() -> None:
-        shutil.rmtree(folder, ignore_errors=True)
+        store.remove_tree(folder)
         MODELS.forget(fid)
         from posefix.maps.sessions import SESSIONS
 
@@ -246,6 +248,14 @@ def delete_floorplan(session: Session, settings: Settings, fp: FloorPlan) -> Non
 
 
 # ---- models ---------------------------------------------------------------------------
+
+def build_model(settings: Settings, fp: FloorPlan, progress: Any) -> dict[str, Any]:
+    """Build the floor plan's model on a local copy of its files and store ``model.npz``."""
+    folder = floor_dir(settings, fp)
+    out = build_model_files(folder, fp.source, fp.cell_m, progress)
+    file_store(settings).put_file(folder / MODEL_FILE, f"{fp.folder}/{MODEL_FILE}")
+    return out
+
 
 def build_model_files(folder: Path, source: str, cell_m: float, progress: Any) -> dict[str, Any]:
     """Build and write ``model.npz`` in ``folder``; returns vertices, size and build time."""

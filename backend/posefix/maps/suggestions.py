@@ -27,6 +27,7 @@ from posefix.jobs import repository as jobs
 from posefix.runs import storage
 from posefix.runs.models import Run
 from posefix.users.service import Principal
+from posefix.filestore import file_store
 
 SUGGEST_JOB = "run.suggestions"
 
@@ -58,7 +59,7 @@ def suggest(session: Session, settings: Settings, run: Run, revision: int | None
     t0 = time.perf_counter()
     number = run.revision if revision is None else revision
     rev = ready(session, run, number)
-    kf = storage.read_keyframes(storage.FileStore(settings.files_dir), rev.keyframes_file)
+    kf = storage.read_keyframes(file_store(settings), rev.keyframes_file)
     k = int(kf.lon_deg.size)
     if k < 2:
         raise Unprocessable(f"run {run.id} has {k} keyframe(s); matching needs two or more", code="too_few_keyframes")

@@ -6,11 +6,12 @@ import datetime as dt
 from typing import Annotated, Any
 
 from fastapi import APIRouter, BackgroundTasks, Query, Request, Response
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import StreamingResponse
 from starlette.datastructures import UploadFile
 
 import anyio
 
+from posefix.filestore import file_response
 from posefix.deps import AnyUser, OwnerUser, ReviewerUser, SessionDep, SettingsDep, UploaderUser, form_text, solver_limiter
 from posefix.errors import AppError, BadRequest, LengthRequired, PayloadTooLarge, UnsupportedMediaType, responses
 from posefix.runs import solutions
@@ -257,14 +258,14 @@ def list_images(run_id: int, principal: AnyUser, session: SessionDep, settings: 
 
 
 @router.get("/images/{image_id}", tags=["images"], responses={200: {"content": {"image/jpeg": {}, "image/png": {}}}, **responses(401, 404)})
-def get_image(image_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> FileResponse:
+def get_image(image_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> Response:
     img = image_service.visible_image(session, principal, settings, image_id)
-    return FileResponse(image_service.original_path(settings, img), media_type=img.content_type,
-                        headers={"Cache-Control": "private, max-age=86400"})
+    return file_response(*image_service.original(settings, img), media_type=img.content_type,
+                         headers={"Cache-Control": "private, max-age=86400"})
 
 
 @router.get("/images/{image_id}/thumbnail", tags=["images"], responses={200: {"content": {"image/jpeg": {}}}, **responses(401, 404)})
-def get_thumbnail(image_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> FileResponse:
+def get_thumbnail(image_id: int, principal: AnyUser, session: SessionDep, settings: SettingsDep) -> Response:
     img = image_service.visible_image(session, principal, settings, image_id)
-    return FileResponse(image_service.thumbnail_path(settings, img), media_type="image/jpeg",
-                        headers={"Cache-Control": "private, max-age=86400"})
+    return file_response(*image_service.thumbnail(settings, img), media_type="image/jpeg",
+                         headers={"Cache-Control": "private, max-age=86400"})

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-from pathlib import Path
 
 from PIL import Image, ImageOps
 from sqlalchemy.orm import Session
@@ -13,7 +12,7 @@ from posefix.errors import NotFound
 from posefix.runs import repository as repo
 from posefix.runs.access import get_visible_run
 from posefix.runs.models import RunImage
-from posefix.runs.storage import FileStore
+from posefix.filestore import FileStore, file_store
 from posefix.users.service import Principal
 
 THUMBNAIL_PX = 320
@@ -30,21 +29,20 @@ def visible_image(session: Session, principal: Principal, settings: Settings, im
     return img
 
 
-def original_path(settings: Settings, img: RunImage) -> Path:
-    return FileStore(settings.files_dir).path(img.storage_path)
+def original(settings: Settings, img: RunImage) -> tuple[FileStore, str]:
+    return file_store(settings), img.storage_path
 
 
-def thumbnail_path(settings: Settings, img: RunImage) -> Path:
-    """The thumbnail, made on first request and reused after (rename makes it appear whole)."""
-    fs = FileStore(settings.files_dir)
+def thumbnail(settings: Settings, img: RunImage) -> tuple[FileStore, str]:
+    """The thumbnail, made on first request and reused after (a store write appears whole)."""
+    fs = file_store(settings)
     rel = f"images/{img.run_id}/{img.id}.thumb.jpg"
-    path = fs.path(rel)
-    if path.is_file():
-        return path
-    with Image.open(fs.path(img.storage_path)) as im:
+    if fs.exists(rel):
+        return fs, rel
+    with fs.open(img.storage_path) as fh, Image.open(fh) as im:
         im = ImageOps.exif_transpose(im)
         im.thumbnail((THUMBNAIL_PX, THUMBNAIL_PX))
         buf = io.BytesIO()
         im.convert("RGB").save(buf, "JPEG", quality=80)
     fs.put_bytes(buf.getvalue(), rel)
-    return path
+    return fs, rel

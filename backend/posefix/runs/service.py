@@ -33,6 +33,7 @@ from posefix.runs.models import Revision, Run, RunImage, RunStatus
 from posefix.runs.schemas import RunPublic
 from posefix.users.models import Role
 from posefix.users.service import Principal
+from posefix.filestore import file_store
 
 EXPORT_FORMATS = {
     "csv": ("text/csv", ".csv"), "parquet": ("application/vnd.apache.parquet", ".parquet"),
@@ -44,7 +45,7 @@ EPOCH_2000_S = 946684800.0
 
 
 def store(settings: Settings) -> storage.FileStore:
-    return storage.FileStore(settings.files_dir)
+    return file_store(settings)
 
 
 def run_public(run: Run, n_images: int = 0, failed: dict[str, Any] | None = None) -> RunPublic:

@@ -28,6 +28,7 @@ from posefix.config import Settings
 from posefix.core.run import PoseRun
 from posefix.engine import CorrectionConfig, Edit, Edits, Preview, Problem, Solution, prepare
 from posefix.runs import storage
+from posefix.filestore import file_store
 
 log = logging.getLogger("posefix.solutions")
 
@@ -48,7 +49,7 @@ class StoredSolution:
 
     @classmethod
     def of(cls, settings: Settings, keyframes_rel: str, cfg: CorrectionConfig) -> "StoredSolution":
-        return cls(storage.FileStore(settings.files_dir), storage.solution_rel(keyframes_rel), config_fingerprint(cfg))
+        return cls(file_store(settings), storage.solution_rel(keyframes_rel), config_fingerprint(cfg))
 
     def load(self, problem: Problem) -> Solution | None:
         sol = storage.read_solution(self.store, self.rel, self.fingerprint)

@@ -1,6 +1,6 @@
 """The file store: full-rate samples (Parquet), per-revision keyframe arrays (.npz), images.
 
-Layout under ``settings.files_dir``::
+Layout in the file store (``<data_dir>/files``, or ``POSEFIX_FILES_URL``)::
 
     runs/<run_id>/original<ext>            the uploaded file, as received
     runs/<run_id>/r<N>-<tag>.parquet       revision N, every sample (interchange columns)
@@ -10,8 +10,9 @@ Layout under ``settings.files_dir``::
     images/<run_id>/<image_id><ext>        image originals; <image_id>.thumb.jpg thumbnails
     staging/<uuid>/                        uploads being checked (removed whatever happens)
 
-Every file is written to a temporary name in the same directory and renamed into place,
-so a reader never sees half a file. A revision's files exist for good only once its row is
+The store is local disk or object storage (``posefix.filestore``); on disk every file is
+written to a temporary name and renamed into place, so a reader never sees half a file.
+A revision's files exist for good only once its row is
 committed: files of a revision written by a job that died (or lost the race to another run
 of the same job) are removed by ``sweep_revision_files``.
 """
@@ -21,14 +22,9 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import os
-import shutil
-import uuid
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import cache
-from pathlib import Path
+from pathlib import PurePosixPath
 from typing import Any
 
 import numpy as np
@@ -36,59 +32,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from posefix.core.run import PoseRun
+from posefix.filestore import FileStore
 from posefix.io.columnar import run_to_arrow, write_parquet_table
 
 BASE_COLUMNS = ("t", "lat", "lon", "alt", "qw", "qx", "qy", "qz")
 GNSS_COLUMNS = ("gnss_lat", "gnss_lon", "gnss_alt")
 IMAGE_COLUMN = "image"
-
-
-class FileStore:
-    def __init__(self, root: Path):
-        self.root = Path(root)
-
-    def path(self, rel: str) -> Path:
-        p = (self.root / rel).resolve()
-        if self.root.resolve() not in p.parents:
-            raise ValueError(f"path {rel!r} escapes the file store")
-        return p
-
-    @contextmanager
-    def staging(self) -> Iterator[Path]:
-        """A private directory removed on exit, whatever happens."""
-        d = self.root / "staging" / uuid.uuid4().hex
-        d.mkdir(parents=True, exist_ok=False)
-        try:
-            yield d
-        finally:
-            shutil.rmtree(d, ignore_errors=True)
-
-    def put_file(self, src: Path, rel: str) -> str:
-        dst = self.path(rel)
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(src, dst) if src.stat().st_dev == _dev(dst.parent) else shutil.copyfile(src, dst)
-        return rel
-
-    def put_bytes(self, data: bytes, rel: str) -> str:
-        dst = self.path(rel)
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        tmp = dst.with_name(f".{dst.name}.{uuid.uuid4().hex}.tmp")
-        tmp.write_bytes(data)
-        os.replace(tmp, dst)
-        return rel
-
-    def remove(self, rel: str) -> None:
-        try:
-            self.path(rel).unlink()
-        except FileNotFoundError:
-            pass
-
-    def remove_tree(self, rel: str) -> None:
-        shutil.rmtree(self.path(rel), ignore_errors=True)
-
-
-def _dev(p: Path) -> int:
-    return p.stat().st_dev
 
 
 # -- full-rate samples -----------------------------------------------------------------
@@ -117,16 +66,15 @@ def table_to_run(table: pa.Table, *, orientation_derived: bool, source: str) -> 
 
 
 def write_samples(store: FileStore, rel: str, run: PoseRun) -> str:
-    dst = store.path(rel)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.{uuid.uuid4().hex}.tmp")
-    write_parquet_table(run_to_arrow(run), tmp)  # the columnar run file: exact values, units in the schema
-    os.replace(tmp, dst)
-    return rel
+    with store.staging() as d:
+        tmp = d / "samples.parquet"
+        write_parquet_table(run_to_arrow(run), tmp)  # the columnar run file: exact values, units in the schema
+        return store.put_file(tmp, rel)
 
 
 def read_samples(store: FileStore, rel: str, *, orientation_derived: bool, source: str) -> PoseRun:
-    return table_to_run(pq.read_table(store.path(rel)), orientation_derived=orientation_derived, source=source)
+    source_file = store.path(rel) if store.is_local else pa.BufferReader(store.read_bytes(rel))
+    return table_to_run(pq.read_table(source_file), orientation_derived=orientation_derived, source=source)
 
 
 # -- per-revision keyframe arrays --------------------------------------------------------
@@ -147,20 +95,17 @@ class KeyframeArrays:
 
 
 def write_keyframes(store: FileStore, rel: str, kf: KeyframeArrays) -> str:
-    dst = store.path(rel)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.{uuid.uuid4().hex}.tmp.npz")
+    buffer = io.BytesIO()
     extra = {} if kf.sigma_m is None else {"sigma_m": kf.sigma_m}
     np.savez_compressed(
-        tmp, lon_deg=kf.lon_deg, lat_deg=kf.lat_deg, alt_m=kf.alt_m, heading_deg=kf.heading_deg,
+        buffer, lon_deg=kf.lon_deg, lat_deg=kf.lat_deg, alt_m=kf.alt_m, heading_deg=kf.heading_deg,
         line_lon_deg=kf.line_lon_deg, line_lat_deg=kf.line_lat_deg, **extra,
     )
-    os.replace(tmp, dst)
-    return rel
+    return store.put_bytes(buffer.getvalue(), rel)
 
 
 def read_keyframes(store: FileStore, rel: str) -> KeyframeArrays:
-    with np.load(store.path(rel)) as z:
+    with np.load(io.BytesIO(store.read_bytes(rel)), allow_pickle=False) as z:
         return KeyframeArrays(**{k: z[k] for k in z.files})
 
 
@@ -284,7 +229,7 @@ def read_solution(store: FileStore, rel: str, fingerprint: str) -> Any | None:
     """The ``Solution`` stored at ``rel``; None when there is none, or it was written by
     another engine configuration (``fingerprint``) or version of the engine's classes."""
     try:
-        with np.load(store.path(rel), allow_pickle=False) as z:
+        with np.load(io.BytesIO(store.read_bytes(rel)), allow_pickle=False) as z:
             meta = json.loads(z["__meta__"].tobytes())
             if meta.get("format") != SOLUTION_FORMAT or meta.get("fingerprint") != fingerprint:
                 return None
@@ -296,13 +241,10 @@ def read_solution(store: FileStore, rel: str, fingerprint: str) -> Any | None:
 
 # -- files of revisions that were never committed ----------------------------------------
 
-def revision_files(store: FileStore, run_id: int, number: int) -> list[Path]:
-    """Every file of revision ``number`` of a run, temporaries of interrupted writes included."""
-    run_dir = store.path(f"runs/{run_id}")
-    if not run_dir.is_dir():
-        return []
+def revision_files(store: FileStore, run_id: int, number: int) -> list[str]:
+    """Names of every file of revision ``number`` of a run, temporaries of interrupted writes included."""
     prefixes = (f"r{number}-", f".r{number}-")
-    return sorted(p for p in run_dir.iterdir() if p.is_file() and p.name.startswith(prefixes))
+    return [name for name in store.names(f"runs/{run_id}") if name.startswith(prefixes)]
 
 
 def sweep_revision_files(store: FileStore, run_id: int, number: int, keep: set[str]) -> list[str]:
@@ -313,14 +255,10 @@ def sweep_revision_files(store: FileStore, run_id: int, number: int, keep: set[s
     then every other file of that revision is left over from a run of the job that died or
     lost the race, and no later run of the job will use it.
     """
-    kept = {store.path(rel).name for rel in keep} | {store.path(solution_rel(rel)).name for rel in keep if rel.endswith(".npz")}
+    kept = {PurePosixPath(rel).name for rel in keep} | {PurePosixPath(solution_rel(rel)).name for rel in keep if rel.endswith(".npz")}
     removed = []
-    for path in revision_files(store, run_id, number):
-        if path.name in kept:
-            continue
-        try:
-            path.unlink()
-            removed.append(path.name)
-        except FileNotFoundError:
-            pass
+    for name in revision_files(store, run_id, number):
+        if name not in kept:
+            store.remove(f"runs/{run_id}/{name}")
+            removed.append(name)
     return removed

@@ -15,6 +15,7 @@ from posefix.runs import repository as runs_repo
 from posefix.runs import solutions, storage
 from posefix.runs.engine_config import engine_config
 from posefix.runs.models import Run, RunStatus
+from posefix.filestore import file_store
 
 
 def load_problem(session: Session, settings: Settings, run: Run) -> Problem:
@@ -27,7 +28,7 @@ def load_problem(session: Session, settings: Settings, run: Run) -> Problem:
     samples_file, derived, name, rules = rev0.samples_file, run.orientation_derived, run.name, dict(run.rules)
 
     def load() -> tuple[Any, Any]:
-        pose = storage.read_samples(storage.FileStore(settings.files_dir), samples_file, orientation_derived=derived, source=name)
+        pose = storage.read_samples(file_store(settings), samples_file, orientation_derived=derived, source=name)
         return pose, engine_config(settings, rules)
 
     return solutions.PROBLEMS.problem(run.id, rules, load)

@@ -29,6 +29,7 @@ from posefix.tasks.schemas import (
 )
 from posefix.users.models import Role, User
 from posefix.users.service import Principal
+from posefix.filestore import file_store
 
 router = APIRouter(tags=["tasks"])
 
@@ -275,7 +276,7 @@ def add_gold_run(
     makes it the qualification test taken before first work."""
     run = get_visible_run(session, principal, settings, run_id)
     name = Path(truth.filename or "truth.csv").name
-    fs = storage.FileStore(settings.files_dir)
+    fs = file_store(settings)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / name
         size = 0

@@ -31,6 +31,7 @@ from posefix.tasks.merge import MergeRefused, merge_task_run
 from posefix.tasks.states import EVALUATE_JOB, MAINTAIN_EVERY_S, MAINTAIN_JOB, MERGE_JOB
 from posefix.tasks.submission import record_evaluation
 from posefix.tasks.models import Assignment, GoldRun
+from posefix.filestore import file_store
 
 
 def _int(payload: dict[str, Any], key: str) -> int:
@@ -43,7 +44,7 @@ def _int(payload: dict[str, Any], key: str) -> int:
 @register(EVALUATE_JOB)
 def evaluate_submission(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
     aid = _int(payload, "assignment_id")
-    fs = storage.FileStore(ctx.settings.files_dir)
+    fs = file_store(ctx.settings)
     with ctx.db.transaction(write=False) as s:
         a = s.get(Assignment, aid)
         if a is None or a.edit_set is None:

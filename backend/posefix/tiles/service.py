@@ -21,6 +21,7 @@ from sqlalchemy.orm import Session
 from posefix.basemap.tiling import is_valid_tile
 from posefix.config import Settings
 from posefix.errors import AppError, BadRequest, Conflict, NotFound, Unprocessable
+from posefix.filestore import file_store
 from posefix.tiles import repository as repo
 from posefix.tiles.models import TileFormat, TileSource
 from posefix.tiles.schemas import TileSourceCreate, TileSourcePublic
@@ -128,7 +129,15 @@ def resolve_data_path(data_dir: Path, path: str) -> tuple[Path, str]:
 
 
 def source_file_path(settings: Settings, source: TileSource) -> Path:
-    return _resolved_file(str(settings.data_dir), source.path or "")
+    return _on_this_machine(settings, _resolved_file(str(settings.data_dir), source.path or ""), source.path or "")
+
+
+def _on_this_machine(settings: Settings, absolute: Path, relative: str) -> Path:
+    """A tile file missing from this machine's data directory is fetched once from the file
+    store (key ``tiles/<path>``), so with object storage one upload serves every machine."""
+    if not absolute.is_file():
+        file_store(settings).fetch_file(f"tiles/{PurePosixPath(relative).as_posix()}", absolute)
+    return absolute
 
 
 @functools.lru_cache(maxsize=256)
@@ -188,7 +197,7 @@ def create_source(session: Session, settings: Settings, body: TileSourceCreate, 
 def _fill_from_file(source: TileSource, settings: Settings, body: TileSourceCreate) -> None:
     absolute, relative = resolve_data_path(settings.data_dir, body.path or "")
     try:
-        info = open_tile_file(absolute).info
+        info = open_tile_file(_on_this_machine(settings, absolute, relative)).info
     except TileFileError as exc:
         raise Unprocessable(str(exc), code="invalid_tile_file") from None
     if body.format is not None and body.format.value != info.format:
