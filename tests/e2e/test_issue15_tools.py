@@ -232,7 +232,10 @@ def test_suggestions_are_picked_by_click_and_decided_by_key(server, context, run
     assert page.get_by_test_id(f"suggestion-row-{first}").inner_text().endswith("accepted")
     shot(page, "editor-suggestions-list", docs=True)
     # The toggle hides them: no layer, no legend entry, and the keys rest.
-    page.get_by_test_id("suggestions-toggle").click()
+    toggle = page.get_by_test_id("suggestions")  # once they are here, the same button shows or hides them
+    assert toggle.get_attribute("aria-pressed") == "true"
+    toggle.click()
+    assert toggle.get_attribute("aria-pressed") == "false"
     page.wait_for_function("() => { const d = window.__posefixMap.getSource('pf-suggestions')._data; return (d.geojson || d).features.length === 0; }")
     assert page.get_by_test_id("legend-suggestions").count() == 0
     page.locator("#map").focus()

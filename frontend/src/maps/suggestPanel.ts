@@ -19,10 +19,12 @@ import {
 } from "./suggestions";
 
 export class SuggestionsPanel {
+  /** Fetches the suggestions; once they are here, shows or hides them. */
   readonly fetchBtn: HTMLButtonElement;
-  readonly toggleBtn: HTMLButtonElement;
   readonly acceptAllBtn: HTMLButtonElement;
-  readonly info: HTMLElement;
+  /** Loading progress and errors, beside the button. */
+  readonly error: HTMLElement;
+  private readonly info: HTMLElement;
   /** The side panel's list: the focused suggestion with Accept / Skip, and every suggestion. */
   readonly listEl: HTMLElement;
   private readonly current = h("p", { "data-testid": "suggestion-current" });
@@ -35,27 +37,27 @@ export class SuggestionsPanel {
 
   constructor(private readonly ctl: EditorController, private readonly notify: (text: string) => void) {
     this.fetchBtn = h("button", { type: "button", "data-testid": "suggestions", title: "Match the run to the street map and suggest positions" }, "Suggestions");
-    this.fetchBtn.addEventListener("click", () => void this.fetch());
-    this.toggleBtn = h("button", { type: "button", "data-testid": "suggestions-toggle", "aria-pressed": "true", hidden: true, title: "Show or hide the suggestions on the map" }, "Show suggestions");
-    this.toggleBtn.addEventListener("click", () => this.toggle());
-    this.acceptAllBtn = h("button", { type: "button", "data-testid": "suggestions-accept-all", hidden: true }, "Accept all");
+    this.fetchBtn.addEventListener("click", () => (this.ready ? this.toggle() : void this.fetch()));
+    this.acceptAllBtn = h("button", { type: "button", "data-testid": "suggestions-accept-all" }, "Accept all");
     this.acceptAllBtn.addEventListener("click", () => this.acceptAll());
-    this.info = h("span", { class: "suggest-info", "data-testid": "suggestions-info", role: "status" });
+    this.error = h("span", { class: "suggest-info", "data-testid": "suggestions-error", role: "status" });
+    this.info = h("p", { class: "muted", "data-testid": "suggestions-info" });
     this.acceptBtn = h("button", { type: "button", class: "primary", "data-testid": "suggestion-accept", title: "Accept the picked suggestion (Enter)" }, "Accept");
     this.acceptBtn.addEventListener("click", () => this.acceptFocused());
     this.skipBtn = h("button", { type: "button", "data-testid": "suggestion-skip", title: "Pass over it and pick the next (S)" }, "Skip");
     this.skipBtn.addEventListener("click", () => this.skip());
     this.listEl = h("section", { class: "suggest-panel", "aria-label": "Suggestions", "data-testid": "suggestion-panel", hidden: true },
       h("h2", {}, "Suggestions"),
+      this.info,
       this.current,
-      h("div", { class: "row" }, this.acceptBtn, this.skipBtn),
+      h("div", { class: "row" }, this.acceptBtn, this.skipBtn, this.acceptAllBtn),
       h("p", { class: "muted keys-hint" }, h("kbd", {}, "Enter"), " accept · ", h("kbd", {}, "S"), " skip · ", h("kbd", {}, "["), " / ", h("kbd", {}, "]"), " previous / next"),
       this.rows);
     this.unsub = ctl.store.subscribe((s) => this.render(s));
   }
 
   get elements(): HTMLElement[] {
-    return [this.fetchBtn, this.toggleBtn, this.acceptAllBtn, this.info];
+    return [this.fetchBtn, this.error];
   }
 
   dispose(): void {
@@ -174,16 +176,14 @@ export class SuggestionsPanel {
     const ready = cur.kind === "ready" ? cur : null;
     const edits = currentEdits(s);
     const left = ready ? todo(ready, edits) : [];
-    this.toggleBtn.hidden = !ready;
-    this.toggleBtn.setAttribute("aria-pressed", String(!!ready?.shown));
-    this.acceptAllBtn.hidden = !ready?.shown;
+    if (ready) this.fetchBtn.setAttribute("aria-pressed", String(ready.shown));
+    else this.fetchBtn.removeAttribute("aria-pressed");
+    this.fetchBtn.title = ready ? "Show or hide the suggestions on the map" : "Match the run to the street map and suggest positions";
     this.acceptAllBtn.disabled = left.length === 0;
     this.acceptAllBtn.textContent = `Accept all (${left.length})`;
-    this.info.textContent =
-      cur.kind === "error" ? cur.message
-        : ready ? `${plural(left.length, "suggestion")} to decide · ${plural(ready.offRoad, "off-road keyframe")}`
-          : "";
-    this.info.className = `suggest-info ${cur.kind === "error" ? "error" : ""}`;
+    this.info.textContent = ready ? `${plural(left.length, "suggestion")} to decide · ${plural(ready.offRoad, "off-road keyframe")}` : "";
+    this.error.textContent = cur.kind === "error" ? cur.message : "";
+    this.error.className = `suggest-info ${cur.kind === "error" ? "error" : ""}`;
     this.listEl.hidden = !ready?.shown;
     if (ready?.shown) this.renderList(ready, edits);
   }

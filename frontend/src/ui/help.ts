@@ -16,7 +16,8 @@ export function keyCaps(keys: readonly string[]): (Node | string)[] {
   const out: (Node | string)[] = [];
   keys.forEach((k, i) => {
     if (i > 0) out.push(" / ");
-    out.push(h("kbd", { title: k }, KEY_NAMES[k] ?? k));
+    const name = k.length > 1 ? k.split("+").map((part) => KEY_NAMES[part] ?? part).join("+") : k;
+    out.push(h("kbd", { title: k }, name));
   });
   return out;
 }
