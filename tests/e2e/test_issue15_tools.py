@@ -34,6 +34,8 @@ def test_export_the_shown_revision_from_the_editor(server, context, run_id):
     assert "Revision 1, as shown." in page.get_by_test_id("export-note").inner_text()
     got = {}
     for fmt in ("csv", "gpx", "geojson"):
+        if page.get_by_test_id("export").get_attribute("open") is None:
+            page.get_by_text("Export", exact=True).click()
         with page.expect_download() as dl:
             page.get_by_test_id(f"export-{fmt}").click()
         d = dl.value
@@ -54,6 +56,8 @@ def test_export_the_shown_revision_from_the_editor(server, context, run_id):
     page.keyboard.press(".")
     page.keyboard.press("Delete")
     wait_editor(page, "unsaved", "1")
+    assert page.get_by_test_id("export").get_attribute("open") is None  # closed once a format was chosen
+    page.get_by_text("Export", exact=True).click()
     assert "unsaved edits are not in it" in page.get_by_test_id("export-note").inner_text()
 
 

@@ -48,7 +48,8 @@ export function installHelpOverlay(root: HTMLElement): () => void {
     h("div", { class: "row spread" }, h("h2", { id: "help-title" }, "Keyboard shortcuts"), close),
     ...shortcutTables(),
     h("p", {}, h("a", { href: "#/help", onclick: () => dialog.close() }, "Help page"), " · ",
-      h("a", { href: "#/help", "data-testid": "overlay-tour", onclick: () => { restartTour(); dialog.close(); } }, "Take the tour again")),
+      h("button", { type: "button", class: "link", "data-testid": "overlay-tour", onclick: () => { restartTour(); dialog.close(); } }, "Take the tour again"),
+      h("span", { class: "muted" }, " (in the run you are editing, or the next one you open)")),
   );
   root.append(dialog);
   const onKey = (e: KeyboardEvent) => {

@@ -40,6 +40,19 @@ export class ExportMenu {
     this.el = h("details", { class: "export-menu", "data-testid": "export" },
       h("summary", { title: "Download the shown revision (CSV, GPX, GeoJSON)" }, "Export"),
       h("div", { class: "export-pop" }, this.list, this.note));
+    // The menu closes once a format is chosen, or on a click elsewhere.
+    this.list.addEventListener("click", (e) => {
+      if ((e.target as Element).closest("a")) this.el.open = false;
+    });
+    document.addEventListener("click", this.onOutside);
+  }
+
+  private onOutside = (e: MouseEvent) => {
+    if (this.el.open && !this.el.contains(e.target as Node)) this.el.open = false;
+  };
+
+  dispose(): void {
+    document.removeEventListener("click", this.onOutside);
   }
 
   /** Point the links at `revision`; `unsaved` edits are mentioned, not exported. */

@@ -64,6 +64,7 @@ export function renderEditor(main: HTMLElement, app: AppContext, runId: string, 
   const suggest = new SuggestionsPanel(ctl, notify);
   cleanups.push(() => suggest.dispose());
   const exportMenu = new ExportMenu(runId);
+  cleanups.push(() => exportMenu.dispose());
   const toolbar = new EditorToolbar({
     undo: () => ctl.undo(),
     redo: () => ctl.redo(),
