@@ -319,7 +319,9 @@ def _score(inst: Instance, seed: int, crowd: str, task_id: int, sims: dict[int, 
         out.append(RunResult(seed, crowd, tr["run_id"], names, _rmse(merged[:, 0], merged[:, 1], lon_t, lat_t),
                              _rmse(inp[:, 0], inp[:, 1], lon_t, lat_t), sub_err, gm_err, bool(tr["conflicts"]), within,
                              adv_used, tr["status"],
-                             " ".join(f"{n}:{e:.2f}/s{s['sigma_m']}/w{s['weight']}" for n, e, s in zip(names, sub_err, subs))))
+                             " ".join(f"{n}:{e:.2f}/s{s['sigma_m']}/w{(detail.get('weights') or {}).get(str(s['assignment_id']), '-')}"
+                                      f"{'!' if s['off_consensus'] else ''}{s['status'][0]}"
+                                      for n, e, s in zip(names, sub_err, subs)) + (f" [{detail['stopped']}]" if detail.get("stopped") else "")))
     return out
 
 

@@ -29,10 +29,12 @@ from posefix.deps import refuse_nul
 from posefix.errors import install_error_handlers
 from posefix.filestore import file_store
 from posefix.edits.failures import failed_edits
+from posefix.edits.repository import on_task_batch
 from posefix.hardening import BodyTimeoutMiddleware, SecurityHeadersMiddleware
 from posefix.runs.access import register_operator_runs, register_task_runs
 from posefix.runs.endpoints import register_failed_edits
 from posefix.tasks.access import live_runs, runs_of_assignments, task_runs
+from posefix.tasks.merge import follow_batch
 
 log = logging.getLogger("posefix.http")
 
@@ -184,6 +186,7 @@ def create_app(settings: Settings | None = None, *, embedded_worker: bool = Fals
     register_operator_runs(runs_of_assignments)
     register_task_runs(task_runs, live_runs)
     register_failed_edits(failed_edits)
+    on_task_batch(follow_batch)
     db = Database(
         settings.resolved_database_url,
         pool_size=settings.db_pool_size,

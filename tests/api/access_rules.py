@@ -77,6 +77,7 @@ RULES: dict[tuple[str, str], str] = {
     ("POST", "/api/v1/assignments/{assignment_id}/submit"):          "401 ok 404 404 404 404 404 403 404",
     ("GET", "/api/v1/review/queue"):                                 "401 403 403 403 ok ok ok ok ok",
     ("GET", "/api/v1/task-runs/{task_run_id}/review"):               "401 403 403 403 ok ok ok ok ok",
+    ("POST", "/api/v1/task-runs/{task_run_id}/merge"):               "401 403 403 403 ok ok ok 403 ok",
     ("POST", "/api/v1/assignments/{assignment_id}/review"):          "401 403 403 403 ok ok ok 403 ok",
     ("GET", "/api/v1/operators"):                                    "401 403 403 403 403 403 ok ok ok",
     ("GET", "/api/v1/operators/me"):                                 "401 ok ok ok ok ok ok ok ok",

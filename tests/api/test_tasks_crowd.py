@@ -108,3 +108,86 @@ def test_work_off_the_weighted_consensus_waits_and_a_bad_majority_is_not_merged(
     view = rv.get(f"/api/v1/task-runs/{tr['id']}/review").json()
     assert "further than the input from every trusted operator" in view["merge_detail"]["stopped"]
     assert env.client("admin").get(f"/api/v1/runs/{work}").json()["head_revision"] == 0
+
+
+def test_a_gold_run_scores_the_placements_not_only_the_smoothed_track(env: Env, tmp_path: Path) -> None:
+    gold = env.import_run("drive-gold-clicks", seed=51)
+    _gold(env, tmp_path, gold)
+    env.add_user("zigzag", "operator")
+    env.client("admin").post("/api/v1/tasks", json=task_body([gold], assignments_per_run=1, priority=10))
+    a = _next(env, "zigzag")["assignment"]
+    n = len(env.keyframes(gold))
+    # every 3rd keyframe 3 m off the truth, alternately east and west: the engine's track
+    # between them averages much of it away, the placements are 3 m off each
+    moves = [truth_move(env, gold, k, error_east_m=3.0 if j % 2 else -3.0) for j, k in enumerate(range(0, n, 3))]
+    assert env.client("zigzag").post(f"/api/v1/assignments/{a['id']}/submit", json={"moves": moves}).status_code == 200
+    env.drain()
+    stats = {s["username"]: s for s in env.client("admin").get("/api/v1/operators").json()}
+    assert 2.8 < stats["zigzag"]["accuracy_m"] < 3.3
+
+
+def test_a_merge_not_measurably_better_than_the_input_is_stopped(env: Env) -> None:
+    for who in ("east", "west"):
+        env.add_user(who, "operator")
+    work = env.import_run("drive-apart", seed=52)
+    task = env.client("admin").post("/api/v1/tasks", json=task_body([work], assignments_per_run=2)).json()
+    ids = {}
+    for who, east in (("east", 20.0), ("west", -20.0)):
+        a = _next(env, who)["assignment"]
+        _submit(env, who, a, east)
+        ids[who] = a["id"]
+    env.drain()
+    for aid in ids.values():  # a reviewer approves both: their midpoint is the truth, but nothing shows it
+        assert env.client("reviewer").post(f"/api/v1/assignments/{aid}/review", json={"decision": "approve"}).status_code == 200
+    env.drain()
+    tr = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()["runs"][0]
+    assert tr["status"] == "unmerged" and tr["merged_revision"] is None
+    view = env.client("reviewer").get(f"/api/v1/task-runs/{tr['id']}/review").json()
+    assert view["merge_detail"]["stopped"].startswith("the input is not measurably worse than the merge")
+    assert env.client("admin").get(f"/api/v1/runs/{work}").json()["head_revision"] == 0
+
+
+def test_a_merge_whose_revision_fails_says_so_and_can_be_merged_again(env: Env) -> None:
+    from sqlalchemy import update
+
+    from posefix.jobs.models import Job, JobStatus
+    from posefix.runs import repository as runs_repo
+    from posefix.runs import solutions
+    from posefix.runs.storage import FileStore
+
+    env.add_user("solo", "operator")
+    work = env.import_run("drive-fails", seed=53)
+    task = env.client("admin").post("/api/v1/tasks", json=task_body([work], assignments_per_run=1)).json()
+    a = _next(env, "solo")["assignment"]
+    _submit(env, "solo", a, 0.0)
+    env.drain()
+    assert env.client("reviewer").post(f"/api/v1/assignments/{a['id']}/review", json={"decision": "approve"}).status_code == 200
+    trid = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()["runs"][0]["id"]
+    rv = env.client("reviewer")
+    for _ in range(10):  # the merge job submits its batch; its revision job has not run yet
+        env.drain(max_jobs=1)
+        if "revision" in (rv.get(f"/api/v1/task-runs/{trid}/review").json()["merge_detail"] or {}):
+            break
+    view = rv.get(f"/api/v1/task-runs/{trid}/review").json()
+    assert view["status"] == "merging" and view["merged_revision"] is None  # not merged until the revision is written
+    with env.db.transaction() as s:  # storage is gone, and the job gets no second attempt
+        path = FileStore(env.settings.files_dir).path(runs_repo.revision(s, work, 0).samples_file)
+        s.execute(update(Job).where(Job.status == JobStatus.queued).values(max_attempts=1))
+    path.rename(path.with_name(path.name + ".away"))
+    solutions.PROBLEMS.forget_all()
+    env.drain()
+    t = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()
+    assert t["runs"][0]["status"] == "merge_failed" and t["runs"][0]["merged_revision"] is None and t["status"] != "done"
+    view = rv.get(f"/api/v1/task-runs/{trid}/review").json()
+    assert "FileNotFoundError" in view["merge_detail"]["failed"]
+    # storage is back: a reviewer merges again (operators may not)
+    path.with_name(path.name + ".away").rename(path)
+    assert env.client("solo").post(f"/api/v1/task-runs/{trid}/merge").status_code == 403
+    again = rv.post(f"/api/v1/task-runs/{trid}/merge")
+    assert again.status_code == 200 and again.json()["status"] == "merging", again.text
+    env.drain()
+    t = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()
+    assert t["runs"][0]["status"] == "merged" and t["runs"][0]["merged_revision"] == 1 and t["status"] == "done"
+    assert env.client("admin").get(f"/api/v1/runs/{work}").json()["head_revision"] == 1
+    twice = rv.post(f"/api/v1/task-runs/{trid}/merge")
+    assert twice.status_code == 409 and twice.json()["error"] == "not_merge_failed"

@@ -63,8 +63,10 @@ def test_conflicting_corrections_are_flagged_reviewed_and_merged(env: Env) -> No
 
     # operators cannot review, nobody reviews their own work
     assert env.client("op1").post(f"/api/v1/assignments/{a2['id']}/review", json={"decision": "approve"}).status_code == 403
-    for aid in (a1["id"], a2["id"]):
-        r = env.client("reviewer").post(f"/api/v1/assignments/{aid}/review", json={"decision": "approve", "feedback": "ok"})
+    # the reviewer sides with op1 (approving both would be stopped: two tracks 20 m apart do not
+    # show that their midpoint beats the input, test_tasks_crowd)
+    for aid, decision in ((a1["id"], "approve"), (a2["id"], "reject")):
+        r = env.client("reviewer").post(f"/api/v1/assignments/{aid}/review", json={"decision": decision, "feedback": "ok"})
         assert r.status_code == 200, r.text
     again = env.client("reviewer").post(f"/api/v1/assignments/{a1['id']}/review", json={"decision": "reject", "feedback": "late"})
     assert again.status_code == 409 and again.json()["error"] == "not_reviewable"
@@ -75,11 +77,11 @@ def test_conflicting_corrections_are_flagged_reviewed_and_merged(env: Env) -> No
     merged = task["runs"][0]["merged_revision"]
     revs = env.client("admin").get(f"/api/v1/runs/{run_id}/revisions").json()["items"]
     assert [r["number"] for r in revs] == [0, merged] == [0, 1]
-    # the merged move of keyframe 10 is the median of the two operators' (midway: ~10 m east of truth)
+    # the merged move of keyframe 10 is op1's (on the truth)
     detail = env.client("admin").get(f"/api/v1/runs/{run_id}/revisions/1").json()
     moves = {m[0]: m for m in detail["edit_set"]["moves"]}
     assert set(moves) == {10, 20, 30}
-    t10 = truth_move(env, run_id, 10, error_east_m=10.0)
+    t10 = truth_move(env, run_id, 10)
     assert abs(moves[10][1] - t10["lon"]) < 2e-6 and abs(moves[10][2] - t10["lat"]) < 2e-6
     hist = env.client("admin").get(f"/api/v1/tasks/{task_id}/history").json()
     seq = [(h["entity"], h["from_status"], h["to_status"]) for h in hist]
@@ -144,7 +146,9 @@ def test_extend_policy_asks_one_more_operator_and_the_plurality_wins(env: Env) -
     assert [(c["kind"], c["a"]) for c in tr["conflicts"]] == [("off_consensus", ids["op2"])]
     held = env.client("op2").get(f"/api/v1/assignments/{ids['op2']}").json()
     assert held["auto_approve_at"] is None  # held for a reviewer
-    assert env.client("op1").get(f"/api/v1/assignments/{ids['op1']}").json()["auto_approve_at"] is not None
+    # and so is the agreeing pair: two operators never measured, against an outlier, could be an
+    # accurate one and a careless one, and nothing yet says which
+    assert env.client("op1").get(f"/api/v1/assignments/{ids['op1']}").json()["auto_approve_at"] is None
     view = env.client("reviewer").get(f"/api/v1/task-runs/{tr['id']}/review").json()
     assert view["method"] == "weighted" and view["submissions"][-1]["operator"] == "op2"
     assert view["submissions"][-1]["off_consensus"] and view["submissions"][-1]["weight"] < 0.05

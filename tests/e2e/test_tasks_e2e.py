@@ -1,7 +1,8 @@
 """Tasks end to end in Chromium against a real `posefix serve` (embedded worker): an admin
 creates a task with 2 assignments in the browser, two operators each get it with "Get next
-task" and correct the same keyframe differently, the conflict is flagged, a reviewer sees
-the submissions side by side and approves both, and the merged revision appears."""
+task" and correct the same keyframe differently (7 and 14 m off the input, the same way), the
+conflict is flagged, a reviewer sees the submissions side by side and approves both, and the
+merged revision appears."""
 
 from __future__ import annotations
 
@@ -82,7 +83,7 @@ def test_admin_two_operators_conflict_review_merge(server, browser, context):
 
     east, north = across_track_m(server, run_id, KF, 7.0)
     operator_corrects(browser, server, "op1", run_id, east, north)
-    operator_corrects(browser, server, "op2", run_id, -east, -north)
+    operator_corrects(browser, server, "op2", run_id, 2 * east, 2 * north)
 
     # the worker scores both submissions; the admin's monitor shows the conflict
     card = admin.get_by_test_id(f"task-{task_id}")
@@ -99,14 +100,14 @@ def test_admin_two_operators_conflict_review_merge(server, browser, context):
     rev.wait_for_selector(".review-map[data-ready='true']", timeout=30_000)
     assert rev.get_by_test_id("review-state").inner_text() == "conflict"
     conflicts = rev.get_by_test_id("conflicts").inner_text()
-    assert f"Keyframe {KF} moved 14." in conflicts or f"Keyframe {KF} moved 13." in conflicts
+    assert re.search(rf"Keyframe {KF} moved [67]\.\d m apart", conflicts), conflicts
     # the table leads with the keyframe where the two corrected runs lie furthest apart (one 7 m
     # edit each way can shift a short run as a whole: the drift model reads it as a GNSS bias)
     disagreement = server.get_json("admin", f"/api/v1/task-runs/{tr_id}/review")["disagreement_m"]
     first = rev.get_by_test_id("worst").locator("tbody tr").first.locator("td")
     assert int(first.nth(0).inner_text()) == max(range(len(disagreement)), key=disagreement.__getitem__)
     assert float(first.nth(1).inner_text()) == pytest.approx(max(disagreement), abs=0.006)
-    assert disagreement[KF] > 13.0
+    assert disagreement[KF] > 6.0
     n_tracks = rev.evaluate("() => window.__posefixReviewMap.querySourceFeatures('review').filter(f => f.properties.kind === 'track').length")
     assert n_tracks >= 2
     shot(rev, "task-review", docs=True)
@@ -117,6 +118,8 @@ def test_admin_two_operators_conflict_review_merge(server, browser, context):
         rev.get_by_test_id(f"approve-{s['assignment_id']}").click()
         rev.get_by_test_id(f"submission-{s['assignment_id']}").filter(has_text="approved").wait_for(timeout=15_000)
 
+    # both 7 and 14 m off the input the same way: their median is measurably better than the input, so it is merged
+    rev.get_by_test_id("review-merged").filter(has_text="Merged as revision 1.").wait_for(timeout=60_000)
     card.get_by_test_id("merged-revision").filter(has_text="1").wait_for(timeout=60_000)
     deadline = time.time() + 60
     revs = []

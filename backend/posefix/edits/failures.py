@@ -95,6 +95,7 @@ def retry(session: Session, settings: Settings, principal: Principal, run: Run, 
         raise _stale(session, run, batch.base_revision)
     batch.status, batch.error, batch.failed_at = BatchStatus.pending, None, None
     session.flush()
+    edits_repo.notify(session, batch.id)
     job_id = _enqueue_revision(session, settings, run, batch, principal, wake)
     session.refresh(run)
     runs_repo.record(session, run, principal.user_id, "retried", revision=batch.revision,
@@ -106,6 +107,8 @@ def retry(session: Session, settings: Settings, principal: Principal, run: Run, 
 def discard(session: Session, principal: Principal, run: Run, batch_id: int) -> EditBatch:
     batch = _own_failed_batch(session, principal, run, batch_id)
     batch.status = BatchStatus.discarded
+    session.flush()
+    edits_repo.notify(session, batch.id)
     runs_repo.record(session, run, principal.user_id, "discarded", revision=batch.revision, detail={"batch_id": batch.id})
     session.flush()
     return batch

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from sqlalchemy import func, insert, select, update
@@ -13,6 +14,27 @@ from posefix.runs.models import RunEvent
 from posefix.users.models import User
 
 LIVE = (BatchStatus.pending, BatchStatus.ready)
+
+# Called in the transaction that moves a task's batch (one with a task_id) to a new status, so
+# the task's own record of its merge (posefix.tasks) never says merged while the batch failed.
+BatchListener = Callable[[Session, EditBatch], None]
+BATCH_LISTENERS: list[BatchListener] = []
+
+
+def on_task_batch(listener: BatchListener) -> BatchListener:
+    if listener not in BATCH_LISTENERS:
+        BATCH_LISTENERS.append(listener)
+    return listener
+
+
+def notify(session: Session, batch_id: int) -> None:
+    batch = session.get(EditBatch, batch_id)
+    if batch is None:
+        return
+    session.refresh(batch)
+    if batch.task_id is not None:
+        for listener in BATCH_LISTENERS:
+            listener(session, batch)
 
 
 def add(session: Session, obj: object) -> None:
@@ -55,14 +77,20 @@ def mark_ready(session: Session, batch_id: int) -> bool:
     """pending -> ready, in the transaction that writes its revision; False when it is not pending."""
     res = session.execute(update(EditBatch).where(EditBatch.id == batch_id, EditBatch.status == BatchStatus.pending)
                           .values(status=BatchStatus.ready))
-    return (res.rowcount or 0) == 1
+    if (res.rowcount or 0) != 1:
+        return False
+    notify(session, batch_id)
+    return True
 
 
 def mark_failed(session: Session, batch_id: int, error: str) -> bool:
     """pending -> failed; False when the batch is not pending (its revision was written)."""
     res = session.execute(update(EditBatch).where(EditBatch.id == batch_id, EditBatch.status == BatchStatus.pending)
                           .values(status=BatchStatus.failed, error=error[:4000], failed_at=utcnow()))
-    return (res.rowcount or 0) == 1
+    if (res.rowcount or 0) != 1:
+        return False
+    notify(session, batch_id)
+    return True
 
 
 def pending_below(session: Session, run_id: int, revision: int) -> int | None:

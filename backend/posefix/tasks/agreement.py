@@ -19,6 +19,7 @@ from posefix.tasks.models import Assignment, AssignmentStatus, Task, TaskRun, Ta
 from posefix.tasks.states import local_m, move_task, slot, to_lonlat
 from posefix.tasks.weighing import weigh
 
+OFF_CONSENSUS = "off the weighted consensus by more than the operator's accuracy explains"
 Reoptimise = Callable[[dict[str, Any]], np.ndarray]  # edit set -> (k, 2) lon, lat solved by the engine
 
 
@@ -37,7 +38,7 @@ def update_consensus(session: Session, task_run_id: int, now: dt.datetime, reopt
     tr.consensus, tr.disagreement_m, tr.conflicts = result["consensus"], result["disagreement_m"], result["conflicts"]
     for a, err in zip(done, result["consensus_error_m"]):
         a.consensus_error_m = err
-    _hold(session, task, tr, [a for a in done if a.id in set(result["held"])], now)
+    _hold(session, task, tr, [a for a in done if a.id in set(result["held"])], now, result["held_why"])
     before = tr.status
     if result["blocking"] and task.conflict_policy == "extend" and tr.extra_added < task.max_extra_assignments \
             and task.status in repo.ACTIVE_TASK + (TaskStatus.reviewable,):
@@ -62,14 +63,14 @@ def update_consensus(session: Session, task_run_id: int, now: dt.datetime, reopt
     maybe_merge(session, tr, now, actor_id=None)
 
 
-def _hold(session: Session, task: Task, tr: TaskRun, off: list[Assignment], now: dt.datetime) -> None:
+def _hold(session: Session, task: Task, tr: TaskRun, off: list[Assignment], now: dt.datetime, why: str) -> None:
     """Work off the consensus waits for a reviewer: no auto-approval."""
     for a in off:
         if a.status == AssignmentStatus.submitted and a.auto_approve_at is not None:
             a.auto_approve_at = None
             repo.record(session, task_id=task.id, entity="assignment", assignment_id=a.id, task_run_id=tr.id,
                         from_status=a.status, to_status=a.status, at=now, reason="held for review",
-                        detail={"why": "off the weighted consensus by more than the operator's accuracy explains"})
+                        detail={"why": why})
 
 
 def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assignment],
@@ -82,7 +83,8 @@ def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assi
     as the merge would submit them) are re-optimised by the engine into one consistent track.
 
     Off the consensus: a submission its operator's measured accuracy does not explain
-    (chi-square, ``weighing.ALPHA``); it is held for a reviewer. The run is in conflict when
+    (chi-square, ``weighing.ALPHA``); it is held for a reviewer, and so is the whole run
+    while the evidence cannot tell which of the rest is right (``Weighing.settled``). The run is in conflict when
     half or more of its submissions are off (no majority to trust). With nothing known, the
     task's fixed distances decide, as the only evidence there is."""
     wg = weigh(session, tr, done)
@@ -99,6 +101,7 @@ def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assi
     if wg.test is None:
         conflicts, blocking = _fixed_conflicts(task, done, x_m, valid, fused_m, origin)
         held: list[int] = []
+        held_why = ""
     else:
         off = np.flatnonzero(wg.flagged)
         conflicts = [{"kind": "off_consensus", "a": ids[i], "keyframes": len(wg.moved),
@@ -106,13 +109,18 @@ def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assi
                       "statistic": round(float(wg.test.statistic[i]), 1), "dof": int(wg.test.dof[i]),
                       "p": float(wg.test.p[i])} for i in off]
         blocking = 2 * len(off) >= len(done)
-        held = [ids[i] for i in off]
+        # work nobody can yet tell right from wrong waits for a reviewer (and for more evidence)
+        held = [ids[i] for i in off] if wg.settled else ids
+        held_why = (OFF_CONSENSUS if wg.settled else
+                    "the run's agreeing work comes from operators never measured, beside work off the consensus: "
+                    "nothing yet tells which is right")
     err = np.linalg.norm(x_m - fused_m[None], axis=2)                   # (m, k)
     consensus_error = [float(err[i][valid[i]].mean()) if valid[i].any() else 0.0 for i in range(len(done))]
     return {
         "consensus": np.round(np.column_stack([lon, lat]), 8).tolist(),
         "disagreement_m": np.round(consensus.disagreement_m(x_m, valid), 3).tolist(),
         "conflicts": conflicts, "consensus_error_m": consensus_error, "blocking": blocking, "held": held,
+        "held_why": held_why,
         "method": wg.method,
     }
 

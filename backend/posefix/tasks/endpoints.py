@@ -206,6 +206,14 @@ def review_view(task_run_id: int, principal: ReviewerUser, session: SessionDep) 
     return reviews.review_view(session, task_run_id)
 
 
+@router.post("/task-runs/{task_run_id}/merge", response_model=ReviewView, responses=responses(401, 403, 404, 409, 415))
+def merge_again(task_run_id: int, principal: ReviewerUser, session: SessionDep) -> ReviewView:
+    """Merge a run whose merge failed (409 ``not_merge_failed`` otherwise) again from its
+    approved work, on the run's latest revision."""
+    reviews.merge_again(session, principal, task_run_id, clock.now())
+    return reviews.review_view(session, task_run_id)
+
+
 @router.post("/assignments/{assignment_id}/review", response_model=AssignmentPublic, responses=responses(401, 403, 404, 409, 415))
 def review(assignment_id: int, body: ReviewIn, principal: ReviewerUser, session: SessionDep) -> AssignmentPublic:
     """Approve or reject submitted work with feedback (never your own). When every submission

@@ -36,8 +36,16 @@ Test of a submission ``i`` against the others (leave-one-out, so it cannot vouch
     T_i = sum_k |x_ik - t_k^(-i)|^2 / (s_i^2 + P_k^(-i))  ~  chi^2 with 2 n_i dof
 
 ``s_i`` is the operator's accuracy measured elsewhere (gold runs, other runs), never fitted
-to this very run. A submission whose ``T_i`` is beyond the ``1 - alpha`` quantile is off
-the consensus by more than its operator's accuracy explains.
+to this very run. That measurement is itself uncertain: estimated from ``d_i`` squared
+residuals, ``s_i^2 ~ s^2 chi^2_{d_i} / d_i``, so ``(T_i / 2 n_i)`` follows an F distribution
+with ``(2 n_i, d_i)`` degrees of freedom (the chi-square above when ``d_i`` is infinite). A
+submission whose ratio is beyond the ``1 - alpha`` quantile is off the consensus by more
+than its operator's accuracy explains; an operator measured on little evidence must be
+further off before the test says so. A second test looks for a steady offset, the mean
+residual ``n_i |mean_k r_ik|^2 / mean_k v_ik ~ chi^2_2`` (same F treatment): work placed
+consistently to one side is off however large its operator's measured scale (an adversary
+measured by agreement alone would otherwise be excused as merely inaccurate). The smaller
+p-value, doubled (Bonferroni), is the submission's.
 
 With nothing known (no gold, fewer than three submissions) the fusion falls back to the
 geometric median (``posefix.tasks.consensus``).
@@ -206,15 +214,17 @@ class ChiTest:
 
 
 def chi2_test(x_m: np.ndarray, valid: np.ndarray, sigma_fit_m: np.ndarray, sigma_ref_m: np.ndarray,
-              *, contributes: np.ndarray | None = None, nu: float = NU) -> ChiTest:
+              *, dof_ref: np.ndarray | None = None, contributes: np.ndarray | None = None, nu: float = NU) -> ChiTest:
     """Each submission against the robust fusion of the others that ``contributes`` (weights
-    ``sigma_fit_m``), scaled by its operator's accuracy measured elsewhere (``sigma_ref_m``)."""
+    ``sigma_fit_m``), scaled by its operator's accuracy measured elsewhere (``sigma_ref_m``,
+    measured with ``dof_ref`` (m,) degrees of freedom, default infinite)."""
     x = np.asarray(x_m, dtype=float)
     v = np.asarray(valid, dtype=bool)
     m = len(x)
     stat, dof, p = np.zeros(m), np.zeros(m), np.ones(m)
     dist, expect = np.full(m, np.nan), np.full(m, np.nan)
     s_ref = np.maximum(np.asarray(sigma_ref_m, dtype=float), SIGMA_FLOOR_M)
+    d_ref = np.full(m, np.inf) if dof_ref is None else np.asarray(dof_ref, dtype=float)
     pull = np.ones(m, dtype=bool) if contributes is None else np.asarray(contributes, dtype=bool)
     for i in range(m):
         others = (np.arange(m) != i) & pull
@@ -224,11 +234,20 @@ def chi2_test(x_m: np.ndarray, valid: np.ndarray, sigma_fit_m: np.ndarray, sigma
         ok = v[i] & ~np.isnan(f.t_m[:, 0])
         if not ok.any():
             continue
-        r2 = np.sum((x[i][ok] - f.t_m[ok]) ** 2, axis=1)
+        r = x[i][ok] - f.t_m[ok]
+        r2 = np.sum(r ** 2, axis=1)
         var = s_ref[i] ** 2 + f.sigma_m[ok] ** 2
         stat[i] = float(np.sum(r2 / var))
         dof[i] = 2.0 * ok.sum()
-        p[i] = float(stats.chi2.sf(stat[i], dof[i]))
+        p_spread = (stats.chi2.sf(stat[i], dof[i]) if np.isinf(d_ref[i])
+                    else stats.f.sf(stat[i] / dof[i], dof[i], max(d_ref[i], 1.0)))
+        # a steady offset (the same direction all along the run) is no accuracy at all, however
+        # large the operator's measured scale: the mean residual of n honest positions has
+        # per-axis variance mean(var) / n, so n |mean r|^2 / mean(var) ~ chi^2_2
+        offset = float(ok.sum() * np.sum(np.mean(r, axis=0) ** 2) / np.mean(var))
+        p_offset = (stats.chi2.sf(offset, 2.0) if np.isinf(d_ref[i])
+                    else stats.f.sf(offset / 2.0, 2.0, max(d_ref[i], 1.0)))
+        p[i] = float(min(1.0, 2.0 * min(p_spread, p_offset)))  # two tests: Bonferroni
         dist[i] = float(np.mean(np.sqrt(r2)))
         expect[i] = float(np.mean(np.sqrt(var))) * SQRT_HALF_PI
     return ChiTest(stat, dof, p, dist, expect)

@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 from posefix.tasks import repository as repo
 from posefix.tasks.agreement import update_consensus
 from posefix.tasks.lifecycle import TOKEN_TTL
-from posefix.tasks.merge import maybe_merge
+from posefix.tasks.merge import maybe_merge, sweep_dead_merges
 from posefix.tasks.models import Assignment, AssignmentStatus, TaskRun, TaskStatus
 from posefix.tasks.states import move_assignment, move_task, replace_slot, withdraw
 
@@ -45,4 +45,6 @@ def maintain(session: Session, now: dt.datetime) -> dict[str, int]:
                 update_consensus(session, tr.id, now)
             ended += 1
     forgotten = repo.forget_tokens(session, now - TOKEN_TTL)
-    return {"leases_expired": expired, "auto_approved": approved, "tasks_expired": ended, "tokens_forgotten": forgotten}
+    failed = sweep_dead_merges(session, now)
+    return {"leases_expired": expired, "auto_approved": approved, "tasks_expired": ended, "tokens_forgotten": forgotten,
+            "merges_failed": failed}

@@ -45,6 +45,7 @@ class TaskRunStatus(enum.StrEnum):
     conflict = "conflict"    # flagged for adjudication
     merging = "merging"      # merge job enqueued
     merged = "merged"        # a revision was made from the approved work
+    merge_failed = "merge_failed"  # the merge or its revision failed: a reviewer may merge again
     unmerged = "unmerged"    # every submission was rejected
 
 

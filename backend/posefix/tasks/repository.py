@@ -111,6 +111,14 @@ def task_runs(session: Session, task_id: int) -> list[TaskRun]:
     return list(session.scalars(select(TaskRun).where(TaskRun.task_id == task_id).order_by(TaskRun.id)))
 
 
+def task_run_of_batch(session: Session, batch_id: int) -> TaskRun | None:
+    return session.scalars(select(TaskRun).where(TaskRun.merge_batch_id == batch_id).limit(1)).first()
+
+
+def merging_runs(session: Session) -> list[TaskRun]:
+    return list(session.scalars(select(TaskRun).where(TaskRun.status == TaskRunStatus.merging).order_by(TaskRun.id)))
+
+
 def set_task_status(session: Session, task: Task, to: TaskStatus, *, allowed_from: tuple[str, ...], at: dt.datetime,
                     actor_id: int | None = None, reason: str | None = None, skip_locked: bool = False) -> bool:
     """Conditional transition: only from the given states; recorded when it happens.
@@ -455,8 +463,12 @@ def anything_timed(session: Session) -> bool:
     return session.scalar(live) is not None or session.scalar(held) is not None
 
 
-def pending_job(session: Session, kind: str) -> bool:
+def pending_job(session: Session, kind: str, run_id: int | None = None) -> bool:
+    """Is a job of ``kind`` (for ``run_id``, when given) queued or running?"""
     from posefix.jobs.models import Job, JobStatus
 
-    return session.scalar(select(Job.id).where(Job.kind == kind, Job.status.in_((JobStatus.queued, JobStatus.running))).limit(1)) is not None
+    stmt = select(Job.id).where(Job.kind == kind, Job.status.in_((JobStatus.queued, JobStatus.running)))
+    if run_id is not None:
+        stmt = stmt.where(Job.run_id == run_id)
+    return session.scalar(stmt.limit(1)) is not None
 

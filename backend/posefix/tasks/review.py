@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 from posefix.errors import Conflict, Forbidden, NotFound
 from posefix.runs import repository as runs_repo
 from posefix.tasks import repository as repo
-from posefix.tasks.merge import maybe_merge
+from posefix.tasks.merge import maybe_merge, retry_merge
 from posefix.tasks.models import Assignment, AssignmentStatus, TaskRun, TaskRunStatus
 from posefix.tasks.schemas import ReviewView, SubmissionView
 from posefix.tasks.states import move_assignment, replace_slot
@@ -92,3 +92,10 @@ def review(session: Session, principal: Principal, assignment_id: int, decision:
     maybe_merge(session, tr, now, actor_id=principal.user_id)
     return a
 
+
+
+def merge_again(session: Session, principal: Principal, task_run_id: int, now: dt.datetime) -> TaskRun:
+    tr = session.get(TaskRun, task_run_id, with_for_update=True)
+    if tr is None:
+        raise NotFound(f"task run {task_run_id} not found", code="task_run_not_found")
+    return retry_merge(session, tr, now, actor_id=principal.user_id)

@@ -97,7 +97,7 @@ def withdraw(session: Session, task: Task, now: dt.datetime, actor_id: int | Non
 
 def finish_task(session: Session, task: Task, now: dt.datetime) -> None:
     left = repo.remaining_open_runs(session, task.id, (TaskRunStatus.open, TaskRunStatus.agreed, TaskRunStatus.conflict,
-                                                       TaskRunStatus.merging))
+                                                       TaskRunStatus.merging, TaskRunStatus.merge_failed))
     if left == 0 and task.status == TaskStatus.reviewable:
         move_task(session, task, TaskStatus.done, now, reason="every run merged or closed")
 

@@ -25,6 +25,9 @@ from posefix.tasks.states import local_m, run_origin
 ALPHA = 1e-3
 POOL_RUNS = 50  # the task's most recent shared runs the EM learns from
 MIN_POSITIONS = 20  # shared-run positions that make an operator's agreement a measurement
+# An operator never measured is expected to be as accurate as the median measured one, known
+# to within a factor of about two: worth this many degrees of freedom in the test.
+TYPICAL_DOF = 4.0
 
 
 @dataclass
@@ -54,6 +57,19 @@ class Weighing:
         if self.test is None:
             return np.zeros(len(self.ids), dtype=bool)
         return self.test.p < ALPHA
+
+    @property
+    def settled(self) -> bool:
+        """Can the evidence tell which work is right? Yes when no one is off the consensus, or
+        three or more agree (their spreads pair up: each one's scale follows from the run), or
+        one of them was measured elsewhere (the others' scales follow from it). Two unmeasured
+        operators who agree only against an outlier may be the accurate one and a careless one,
+        and this run alone cannot say which."""
+        off = self.flagged
+        if not off.any():
+            return True
+        agree = ~off
+        return int(agree.sum()) >= 3 or bool(np.any(self.measured[agree]))
 
     @property
     def weight_share(self) -> np.ndarray:
@@ -134,17 +150,19 @@ def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: s
     # is enough of it, else gold runs (a gold run scores the engine's smoothed track, so it
     # reads an operator somewhat better than their clicks)
     s_ref = np.where(np.isnan(prior_s), np.nan, prior_s)
+    d_ref = np.where(np.isnan(prior_s), TYPICAL_DOF, 2.0 * prior_n)
     if others:
         agree = fusion.estimate(others, np.full(len(users), np.nan), np.zeros(len(users)))
         enough = agree.n_positions >= MIN_POSITIONS
         s_ref = np.where(enough, agree.sigma_m, s_ref)
+        d_ref = np.where(enough, 2.0 * agree.n_positions, d_ref)
     ref = s_ref[ops]
     # never measured: expected to be as good as the median measured operator (the median of
     # this run's own estimates only when nobody is measured: two bad of three would set it)
     typical = float(np.nanmedian(s_ref)) if np.any(~np.isnan(s_ref)) else float(np.median(full.sigma_m[ops]))
     ref = np.where(np.isnan(ref), typical, ref)
     fused = fusion.fuse(x_m, valid & truth[:, None], full.sigma_m[ops])
-    test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, contributes=truth)
+    test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, dof_ref=d_ref[ops], contributes=truth)
     return Weighing([a.id for a in subs], origin, x_m, valid, moved, full.sigma_m[ops], ref, measured_ops[ops],
                     [gold.get(a.operator_id or 0, (None, 0))[0] for a in subs],
                     [gold.get(a.operator_id or 0, (None, 0))[1] for a in subs], fused, test, "weighted")

@@ -35,6 +35,8 @@ export const tasksApi = {
   cancel: (id: number) => unwrap(client.POST("/api/v1/tasks/{task_id}/cancel", tid(id))),
   reviewQueue: () => unwrap(client.GET("/api/v1/review/queue")),
   reviewView: (taskRunId: number) => unwrap(client.GET("/api/v1/task-runs/{task_run_id}/review", { params: { path: { task_run_id: taskRunId } } })),
+  mergeAgain: (taskRunId: number) =>
+    unwrap(client.POST("/api/v1/task-runs/{task_run_id}/merge", { params: { path: { task_run_id: taskRunId } } })),
   review: (assignmentId: number, decision: "approve" | "reject", feedback: string) =>
     unwrap(client.POST("/api/v1/assignments/{assignment_id}/review", { ...aid(assignmentId), body: { decision, feedback: feedback || null } })),
   operators: () => unwrap(client.GET("/api/v1/operators")),

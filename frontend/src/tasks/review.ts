@@ -182,6 +182,7 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
     head.replaceChildren(h("div", {},
       h("h1", {}, `Task ${v.task_id} · run ${v.run_id} `, h("span", { class: `status status-${v.status}`, "data-testid": "review-state" }, v.status)),
       v.merged_revision !== null ? h("p", { "data-testid": "review-merged" }, `Merged as revision ${v.merged_revision}.`) : null,
+      mergeNote(v),
       v.conflicts?.length
         ? h("ul", { class: "conflicts", "data-testid": "conflicts" }, ...v.conflicts.map((c) => h("li", {},
             c.kind === "off_consensus"
@@ -231,6 +232,26 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
   }
 
   /** Rank, weight in the consensus, and the operator's measured accuracy beside their distance. */
+  /** Why a decided run was not merged, or why its merge failed (with a way to merge again). */
+  function mergeNote(v: ReviewView): HTMLElement | null {
+    const d = (v.merge_detail ?? {}) as Record<string, unknown>;
+    if (v.status === "unmerged" && d.stopped)
+      return h("p", { class: "error", "data-testid": "review-stopped" }, `Not merged: ${String(d.stopped)}.`);
+    if (v.status !== "merge_failed") return null;
+    const msg = h("span", { role: "status" });
+    const again = h("button", { type: "button", "data-testid": "merge-again" }, "Merge again");
+    again.addEventListener("click", async () => {
+      try {
+        await tasksApi.mergeAgain(v.task_run_id);
+        await load();
+      } catch (err) {
+        msg.textContent = describeError(err);
+      }
+    });
+    return h("p", { class: "error", role: "alert", "data-testid": "review-merge-failed" },
+      `The merge failed: ${String(d.failed ?? "its revision could not be written")}. `, again, " ", msg);
+  }
+
   function weighing(s: ReviewView["submissions"][number]) {
     if (s.rank == null) return null;
     const acc = s.accuracy_m != null ? `accuracy ${s.accuracy_m.toFixed(2)} m on ${s.gold_scored ?? 0} gold run(s)` : "accuracy not measured";
