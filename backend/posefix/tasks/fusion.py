@@ -28,8 +28,11 @@ the posterior mode under a prior of ``n0_o`` pseudo-positions of scale ``s0_o``:
 operator's measured mean error ``g``: for a 2-D Gaussian E|e| = s sqrt(pi/2), so
 ``s0 = g / sqrt(pi/2)``, worth ``GOLD_POSITIONS`` positions a gold run) or, for an operator
 never measured, the median scale of the others worth one position. Submissions a reviewer
-rejected enter the M-step at ``u = 1`` (their whole error counts against the operator) and
-never the E-step (they do not pull the truth).
+rejected enter the M-step at ``u = 1`` (their whole error counts against the operator). They
+stay in the E-step at their own (large) scale: their errors are independent of everyone
+else's, and without them two agreeing operators left alone on a run are indistinguishable
+(only the sum of their variances shows). What is merged never includes them (``fuse`` over
+the contributors).
 
 Test of a submission ``i`` against the others (leave-one-out, so it cannot vouch for itself):
 
@@ -163,7 +166,7 @@ def estimate(runs: list[RunObs], prior_sigma_m: np.ndarray, prior_n: np.ndarray,
         n_pos = np.zeros(n_ops)
         fused = []
         for j, run in enumerate(runs):
-            f = fuse(run.x_m, run.valid & run.truth[:, None], s[run.op], nu=nu, t0_m=fused_prev[j].t_m if fused_prev else None)
+            f = fuse(run.x_m, run.valid, s[run.op], nu=nu, t0_m=fused_prev[j].t_m if fused_prev else None)
             fused.append(f)
             r2 = np.sum((run.x_m - np.nan_to_num(f.t_m)[None]) ** 2, axis=2)
             s2 = s[run.op][:, None] ** 2

@@ -231,7 +231,6 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
     await drawMap(v);
   }
 
-  /** Rank, weight in the consensus, and the operator's measured accuracy beside their distance. */
   /** Why a decided run was not merged, or why its merge failed (with a way to merge again). */
   function mergeNote(v: ReviewView): HTMLElement | null {
     const d = (v.merge_detail ?? {}) as Record<string, unknown>;
@@ -252,6 +251,7 @@ export function renderReview(main: HTMLElement, ctx: AppContext, taskRunId: numb
       `The merge failed: ${String(d.failed ?? "its revision could not be written")}. `, again, " ", msg);
   }
 
+  /** Rank, weight in the consensus, and the operator's measured accuracy beside their distance. */
   function weighing(s: ReviewView["submissions"][number]) {
     if (s.rank == null) return null;
     const acc = s.accuracy_m != null ? `accuracy ${s.accuracy_m.toFixed(2)} m on ${s.gold_scored ?? 0} gold run(s)` : "accuracy not measured";
