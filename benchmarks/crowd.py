@@ -1,6 +1,6 @@
 """Does the crowd beat its best member? Simulated operators of known skill drive the real API.
 
-    python -m benchmarks.crowd [--seeds 1,2,3,4,5] [--tuned 1,2] [--runs 6] [--duration-s 180]
+    python -m benchmarks.crowd [--seeds 1,2,3,4,5,6,7,8] [--tuned 1,2,5,6] [--runs 6] [--duration-s 180]
 
 Per seed a fresh instance (``posefix serve`` on loopback HTTP, SQLite, embedded worker) gets
 simulated drives (``posefix.core.simulate``, regime "mixed", 5 Hz) and two crowds of eight
@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -369,19 +370,20 @@ def _summary(label: str, rows: list[RunResult]) -> None:
         inp = statistics.mean(r.input for r in rs)
         gm = statistics.mean(r.gm for r in rs)
         worse = sum(r.merged > r.input for r in rs)
+        stopped = sum(r.status != "merged" for r in rs)
         print(f"  {label} {crowd} ({title}), {len(rs)} runs:")
         print(f"    merged {merged:6.2f} m | best single {best:6.2f} m (ratio {merged / best:4.2f}) | median operator {med:6.2f} m"
               f" | input {inp:6.2f} m | unweighted geometric median {gm:6.2f} m (ratio {gm / best:4.2f})")
         within = [r for r in rs if r.within]
-        print(f"    runs merged worse than input: {worse}; adversarial work carrying weight in a merge: "
+        print(f"    runs merged worse than input: {worse}; not merged (stopped or all rejected): {stopped}; adversarial work carrying weight in a merge: "
               f"{sum(r.adversary_in_merge for r in rs)}; conflict flags on all-within-requirement runs: "
               f"{sum(r.flagged for r in within)}/{len(within)}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", default="1,2,3,4,5")
-    ap.add_argument("--tuned", default="1,2", help="seeds used while tuning (reported apart)")
+    ap.add_argument("--seeds", default="1,2,3,4,5,6,7,8")
+    ap.add_argument("--tuned", default="1,2,5,6", help="seeds used while tuning (reported apart)")
     ap.add_argument("--runs", type=int, default=6)
     ap.add_argument("--duration-s", type=float, default=180.0)
     args = ap.parse_args()
@@ -401,7 +403,9 @@ def main() -> None:
     print("\nRMSE against the truth at the keyframes, mean over runs (best/median: that run's submissions)")
     _summary("tuned seeds", [r for r in rows if r.seed in tuned])
     _summary("held-out seeds", [r for r in rows if r.seed not in tuned])
-    print(f"\ntotal {time.perf_counter() - started:.0f} s")
+    cpu = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    print(f"\ntotal {time.perf_counter() - started:.0f} s wall, CPU {cpu[0].ru_utime + cpu[0].ru_stime:.0f} s here + "
+          f"{cpu[1].ru_utime + cpu[1].ru_stime:.0f} s in the servers and workers")
 
 
 if __name__ == "__main__":

@@ -86,3 +86,23 @@ def test_gold_prior_fixes_scales_that_two_operators_alone_cannot() -> None:
     est = fusion.estimate([run], np.array([0.5, np.nan]), np.array([fusion.GOLD_POSITIONS, 0.0]))
     assert est.sigma_m[0] < 0.8 and est.sigma_m[1] > 2.5
     assert np.sqrt(np.mean(np.sum(est.fused[0].t_m ** 2, axis=1))) < 0.9
+
+
+def test_a_steady_offset_is_off_even_for_an_operator_measured_as_inaccurate() -> None:
+    """An adversary the EM has measured by agreement alone (a ~21 m scale) is still off: its
+    30 m are the same direction all along; an honest operator whose two partners are both
+    steadily off (each its own way) is not blamed for their offsets."""
+    rng = np.random.default_rng(13)
+    k = 37
+    t = rng.uniform(-500, 500, (k, 2))
+    honest = t[None] + rng.normal(size=(2, k, 2)) * np.array([0.5, 2.0])[:, None, None]
+    adversary = t + np.array([30.0, 0.0]) + rng.normal(size=(k, 2)) * 0.5
+    x = np.concatenate([honest, adversary[None]])
+    measured = np.array([0.5, 2.0, 21.0])
+    test = fusion.chi2_test(x, np.ones((3, k), bool), measured, measured, dof_ref=np.full(3, 200.0))
+    assert test.p[2] < 1e-6 and test.p[0] > 1e-3 and test.p[1] > 1e-3
+    bad = np.stack([t + np.array([25.0, 0.0]), t + np.array([0.0, 25.0])]) + rng.normal(size=(2, k, 2))
+    y = np.concatenate([honest[:1], bad])
+    sig = np.array([0.5, 18.0, 18.0])
+    test = fusion.chi2_test(y, np.ones((3, k), bool), sig, sig, dof_ref=np.full(3, 200.0))
+    assert test.p[0] > 1e-3

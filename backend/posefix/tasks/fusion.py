@@ -246,11 +246,25 @@ def chi2_test(x_m: np.ndarray, valid: np.ndarray, sigma_fit_m: np.ndarray, sigma
                     else stats.f.sf(stat[i] / dof[i], dof[i], max(d_ref[i], 1.0)))
         # a steady offset (the same direction all along the run) is no accuracy at all, however
         # large the operator's measured scale: the mean residual of n honest positions has
-        # per-axis variance mean(var) / n, so n |mean r|^2 / mean(var) ~ chi^2_2
-        offset = float(ok.sum() * np.sum(np.mean(r, axis=0) ** 2) / np.mean(var))
+        # per-axis variance mean(var) / n, plus how far the others' own steady offsets leave
+        # their consensus unsure (two adversaries cannot make the honest one look offset)
+        offset = float(np.sum(np.mean(r, axis=0) ** 2) / (np.mean(var) / ok.sum() + _others_offset_var(x[others], v[others], f, ok)))
         p_offset = (stats.chi2.sf(offset, 2.0) if np.isinf(d_ref[i])
                     else stats.f.sf(offset / 2.0, 2.0, max(d_ref[i], 1.0)))
         p[i] = float(min(1.0, 2.0 * min(p_spread, p_offset)))  # two tests: Bonferroni
         dist[i] = float(np.mean(np.sqrt(r2)))
         expect[i] = float(np.mean(np.sqrt(var))) * SQRT_HALF_PI
     return ChiTest(stat, dof, p, dist, expect)
+
+
+def _others_offset_var(x_m: np.ndarray, valid: np.ndarray, f: Fused, ok: np.ndarray) -> float:
+    """Per-axis variance of the consensus's own steady offset: the weighted spread of the
+    contributing submissions' mean residuals about it (0 when they share one)."""
+    w = np.where(valid[:, ok], f.w[:, ok], 0.0)
+    share = w.sum(axis=1)
+    if share.sum() <= 0:
+        return 0.0
+    share = share / share.sum()
+    r = np.where(valid[:, ok, None], x_m[:, ok] - f.t_m[None, ok], 0.0)
+    mean = r.sum(axis=1) / np.maximum(valid[:, ok].sum(axis=1), 1)[:, None]     # (m, 2)
+    return float(np.sum(share * np.sum(mean ** 2, axis=1)) / 2.0)
