@@ -29,8 +29,8 @@ describe("review helpers", () => {
     expect(trackColour(7)).toBe(trackColour(0));
   });
   it("says requirements and rewards in words", () => {
-    expect(requirementText({ qualification: "approved_count", comparator: "ge", value: 5 })).toBe("approved_count at least 5");
-    expect(requirementText({ qualification: "level", comparator: "in", value: [1, 2] })).toBe("level one of 1, 2");
+    expect(requirementText({ qualification: "approved_count", comparator: "ge", value: 5 })).toBe("approved assignments (count) at least 5");
+    expect(requirementText({ qualification: "level", comparator: "in", value: [1, 2] })).toBe("level is one of 1, 2");
     expect(fmtReward(50, "EUR")).toBe("0.50 EUR");
   });
 });

@@ -1,4 +1,5 @@
 /** Pure helpers of the task pages (tested without a DOM). */
+import { BUILTIN_QUALIFICATIONS, COMPARATOR_WORDS } from "./taskForm";
 
 /** "mm:ss" (or "h:mm:ss") left on a lease; "expired" at or below zero. */
 export function fmtRemaining(seconds: number): string {
@@ -42,14 +43,11 @@ export function worstKeyframes(disagreementM: number[], n: number, minM = 0): [n
     .slice(0, n);
 }
 
-/** A task requirement in words: "approved_count at least 5". */
+/** A task requirement in words: "approved assignments (count) at least 5". */
 export function requirementText(r: { qualification?: unknown; comparator?: unknown; value?: unknown }): string {
-  const words: Record<string, string> = {
-    lt: "less than", le: "at most", gt: "more than", ge: "at least", eq: "exactly", ne: "not",
-    exists: "held", not_exists: "not held", in: "one of", not_in: "none of", contains: "contains the run", passed: "passed",
-  };
+  const name = String(r.qualification);
   const v = Array.isArray(r.value) ? r.value.join(", ") : r.value ?? "";
-  return `${String(r.qualification)} ${words[String(r.comparator)] ?? String(r.comparator)} ${v}`.trim();
+  return `${BUILTIN_QUALIFICATIONS[name] ?? name} ${COMPARATOR_WORDS[String(r.comparator)] ?? String(r.comparator)} ${v}`.trim();
 }
 
 export type ReviewCommand = "next" | "previous" | "approve" | "reject" | "solo" | "next-run";
