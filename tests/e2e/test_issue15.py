@@ -37,7 +37,7 @@ def api_move(server, username: str, run_id: int, index: int, east_m: float, comm
 
 
 def test_history_compare_revert_and_audit(server, browser, run_id):
-    api_move(server, "op1", run_id, 10, 6.0, "onto the lane")
+    api_move(server, "op1", run_id, 10, 2.0, "onto the lane")  # small: 6 m east would pass keyframe 9 (order rule)
     page = browser.new_page(viewport={"width": 1400, "height": 900})
     login(page, server, "admin")
     open_run(page, server, run_id)

@@ -151,9 +151,13 @@ def test_review_screen_ranks_by_the_weighted_consensus_with_measured_accuracies(
     admin = server.srv.client("admin")
     with truth_csv.open("rb") as fh:
         admin.post("/api/v1/gold-runs", data={"run_id": str(run_id)}, files={"truth": ("truth.csv", fh, "text/csv")}).raise_for_status()
+    # The operators put keyframes on the truth, which lies metres along the track from the reported
+    # neighbours they leave unmoved (the drive's GNSS bias): the order rule flags those moves here
+    # (the suite's engine config refuses them, to make the refusal reachable in the editor).
     task = admin.post("/api/v1/tasks", json={"title": "weighted review", "run_ids": [run_id], "assignments_per_run": 3,
                                              "lease_s": 600, "lifetime_s": 3600, "auto_approval_delay_s": 3600,
-                                             "conflict_policy": "flag"})
+                                             "conflict_policy": "flag", "rules": {"every_n": 2, "lock_n": 2, "max_move_m": 60.0,
+                                                                                  "order_rule": "flag"}})
     task.raise_for_status()
     task_id = task.json()["id"]
     truth = read_run(truth_csv)

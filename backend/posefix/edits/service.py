@@ -168,8 +168,9 @@ def submit(
     batch_moves = _moves(moves)
     check = check_batch(problem, problem.cfg.rules, Edits.from_json(base_set), batch_moves, deleted)
     if check.refusals:
+        n = len(check.refusals)
         raise Unprocessable(
-            f"{len(check.refusals)} edit(s) refused by the editing rules", code="edit_refused",
+            f"{n} edit{'' if n == 1 else 's'} refused by the editing rules", code="edit_refused",
             extra={"refusals": [r.to_json() for r in check.refusals]},
         )
     _claim(session, run, base)

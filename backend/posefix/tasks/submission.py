@@ -46,7 +46,8 @@ def submit(session: Session, settings: Settings, principal: Principal, assignmen
     moves = [Edit(m.index, m.lon, m.lat, m.alt) for m in body.moves]
     check = check_batch(problem, problem.cfg.rules, Edits.from_json(base), moves, body.deleted)
     if check.refusals:
-        raise Unprocessable(f"{len(check.refusals)} edit(s) refused by the editing rules", code="edit_refused",
+        n = len(check.refusals)
+        raise Unprocessable(f"{n} edit{'' if n == 1 else 's'} refused by the editing rules", code="edit_refused",
                             extra={"refusals": [r.to_json() for r in check.refusals]})
     edit_set = Edits.from_json(base).merged(moves, body.deleted, check.flags).to_json()
     edit_set["accept"] = bool(body.accept)
