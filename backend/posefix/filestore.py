@@ -150,6 +150,26 @@ class FileStore:
             os.replace(tmp, dst)
         return rel
 
+    @contextmanager
+    def writing(self, rel: str) -> Iterator[Path]:
+        """A local file to write ``rel``'s content into; it is stored whole when the block ends.
+        On disk the temporary lies beside the target (``.<name>.<uuid>.tmp``), so what a killed
+        writer leaves is found with the target's other files and swept with them."""
+        if not self.is_local:
+            with self.staging() as d:
+                tmp = d / PurePosixPath(self._key(rel)).name
+                yield tmp
+                self.put_file(tmp, rel)
+            return
+        dst = self.path(rel)
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        tmp = dst.with_name(f".{dst.name}.{uuid.uuid4().hex}.tmp")
+        try:
+            yield tmp
+            os.replace(tmp, dst)
+        finally:
+            tmp.unlink(missing_ok=True)
+
     def put_tree(self, src: Path, rel_dir: str) -> str:
         """Store every file under the local folder ``src`` below ``rel_dir``."""
         for path in sorted(p for p in Path(src).rglob("*") if p.is_file()):

@@ -66,10 +66,9 @@ def table_to_run(table: pa.Table, *, orientation_derived: bool, source: str) -> 
 
 
 def write_samples(store: FileStore, rel: str, run: PoseRun) -> str:
-    with store.staging() as d:
-        tmp = d / "samples.parquet"
+    with store.writing(rel) as tmp:
         write_parquet_table(run_to_arrow(run), tmp)  # the columnar run file: exact values, units in the schema
-        return store.put_file(tmp, rel)
+    return rel
 
 
 def read_samples(store: FileStore, rel: str, *, orientation_derived: bool, source: str) -> PoseRun:
