@@ -88,28 +88,32 @@ class BodyTimeoutMiddleware:
         self.idle_timeout_s = idle_timeout_s
         self.min_rate_bps = min_rate_bps
 
-    def _wait_s(self, elapsed_s: float, received: int) -> float:
-        """How long the next piece of the body may take."""
-        if elapsed_s < self.idle_timeout_s or self.min_rate_bps <= 0:
+    def _wait_s(self, waited_s: float, received: int) -> float:
+        """How long the next piece of the body may take, given the time already spent waiting for it.
+
+        Only time spent waiting on the client counts: a server slow to start reading (a busy
+        thread pool, a queued database connection) must not turn into the client's 408."""
+        if waited_s < self.idle_timeout_s or self.min_rate_bps <= 0:
             return self.idle_timeout_s
         # past the idle window the body must also keep its average rate up
-        return max(0.0, min(self.idle_timeout_s, received / self.min_rate_bps - elapsed_s))
+        return max(0.0, min(self.idle_timeout_s, received / self.min_rate_bps - waited_s))
 
     async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        started = time.monotonic()
+        waited = 0.0
         received = 0
         body_done = False
         timed_out = False
         answered = False
 
         async def guarded_receive() -> dict[str, Any]:
-            nonlocal received, body_done, timed_out
+            nonlocal received, body_done, timed_out, waited
             if body_done:  # e.g. a streamed response listening for the disconnect: no limit
                 return await receive()
-            wait_s = self._wait_s(time.monotonic() - started, received)
+            wait_s = self._wait_s(waited, received)
+            asked = time.monotonic()
             try:
                 if wait_s <= 0:
                     raise TimeoutError
@@ -118,6 +122,8 @@ class BodyTimeoutMiddleware:
             except TimeoutError:
                 timed_out = True
                 raise BodyTimeout() from None
+            finally:
+                waited += time.monotonic() - asked
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 body_done = not message.get("more_body", False)

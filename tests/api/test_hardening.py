@@ -136,6 +136,31 @@ class TestSlowBodies:
         assert answer.startswith(b"HTTP/1.1 401"), answer[:200]
 
 
+    def test_a_server_slow_to_read_does_not_blame_the_client(self) -> None:
+        """The whole body is there at once; the app only starts reading after the idle window."""
+        import anyio
+
+        from posefix.hardening import BodyTimeoutMiddleware
+
+        answers: list[dict[str, Any]] = []
+
+        async def slow_app(scope: dict[str, Any], receive: Any, send: Any) -> None:
+            await anyio.sleep(0.3)  # a busy thread pool, a queued database connection
+            body = (await receive())["body"]
+            await send({"type": "http.response.start", "status": 200, "headers": []})
+            await send({"type": "http.response.body", "body": body})
+
+        async def receive() -> dict[str, Any]:
+            return {"type": "http.request", "body": b"all of it", "more_body": False}
+
+        async def send(message: dict[str, Any]) -> None:
+            answers.append(message)
+
+        app = BodyTimeoutMiddleware(slow_app, idle_timeout_s=0.1, min_rate_bps=2000.0)
+        anyio.run(app, {"type": "http", "path": "/"}, receive, send)
+        assert answers[0]["status"] == 200 and answers[1]["body"] == b"all of it"
+
+
 # ------------------------------------------------------------------ CSRF origin
 
 
