@@ -36,11 +36,14 @@ export function tourAdvance(step: TourStep, prev: EditorState, next: EditorState
   }
 }
 
+const TOUR_REACHABLE_MOVE_M = 100;
+
 /** How to meet a refusal under this run's rules, in words. */
 export function refusalHint(r: EditRules): string {
   if (r.lock_n > 0) return `Now drag one of the ${r.lock_n} keyframes just ${r.lock_direction === "both" ? "beside" : "after"} your move: they are locked (amber), so the move is refused.`;
-  if (r.max_move_m > 0) return `Now drag a keyframe more than ${r.max_move_m} m from where it was recorded: that is too far, so the move is refused.`;
   if (r.every_n > 1) return `Now drag a grey keyframe: only one keyframe in ${r.every_n} may move, so the move is refused.`;
+  // Every run has a distance limit, but only a short one can be met by a drag on screen.
+  if (r.max_move_m <= TOUR_REACHABLE_MOVE_M) return `Now drag a keyframe more than ${r.max_move_m} m from where it was recorded: that is too far, so the move is refused.`;
   return "Now drag a keyframe past its neighbour along the track: the track would run backwards, so the move is refused.";
 }
 
