@@ -43,10 +43,14 @@ def floor_model(floor: Path):
                        weights={"f1": 0.8, "f2": 0.4, "f3": 1.0, "f4": 0.5})
 
 
-def fingerprint_file(walks: list[Path], out: Path) -> Path:
+def fingerprint_file(walks: list[Path], out: Path, f3: bool = True) -> Path:
+    """Fingerprints of ``walks``; two survey walks calibrate neither f3 nor f4, so parity
+    switches both on (``f3=False``: f3 as built, left out)."""
     fp = build_fingerprints([read_walk(w) for w in walks])
     if fp.peak_sigma_m is None:
-        fp.peak_sigma_m = 10.0  # two survey walks cannot calibrate f4; parity needs it on
+        fp.peak_sigma_m = 10.0
+    if f3:
+        fp.f3_calibrated, fp.f3_note = True, ""
     save_fingerprints(fp, out)
     return out
 
@@ -89,6 +93,9 @@ def cases(out: Path, floors: list[str]) -> list[dict]:
         fp_path = fingerprint_file(walks[1:], out / f"{floor}-fp.npz")
         found.append(run_case(f"{floor} {walks[0].stem} known start + WiFi", floor, walks[0], model_path, fp_path, "first_waypoint"))
         found.append(run_case(f"{floor} {walks[0].stem} unknown start + WiFi", floor, walks[0], model_path, fp_path, "unknown"))
+        off_path = fingerprint_file(walks[1:2], out / f"{floor}-fp-f3-off.npz", f3=False)
+        found.append(run_case(f"{floor} {walks[0].stem} unknown start + uncalibrated f3", floor, walks[0], model_path,
+                              off_path, "unknown"))
     return found
 
 

@@ -100,6 +100,9 @@ def fingerprints(floor: Path, walks: tuple[Path, ...], output: Path) -> None:
                    f"covariance scale {fp.cov_scale:.2f} (held-out calibration), outlier rate "
                    f"{fp.outlier_frac:.2f}, walk-long error correlation {fp.walk_corr:.2f}; "
                    f"{size / 1024:.1f} KiB -> {output}")
+        if not fp.f3_calibrated:
+            click.echo(f"warning: {fp.f3_note}; tracking with this file uses no WiFi fingerprints "
+                       f"(f4 {'on' if fp.peak_sigma_m is not None else 'off too'})", err=True)
 
 
 @mm.command("train", context_settings=CONTEXT)
@@ -165,6 +168,8 @@ def track(walk: Path, model_path: Path, output: Path, fingerprints: Optional[Pat
 
         model = load_model(model_path)
         fp = load_fingerprints(fingerprints, method=wifi_method) if fingerprints else None
+        if fp is not None and not fp.f3_calibrated:
+            click.echo(f"warning: {fingerprints}: {fp.f3_note}", err=True)
         xy = _parse_xy(start) if start else None
         bar = tqdm(desc="tracking", unit="step")
 

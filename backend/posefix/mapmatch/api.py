@@ -150,6 +150,9 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
             data = []
             for w, st, t, clamp in data_wifi:
                 fp = build_fingerprints([x for x in with_wifi if x is not w], method="knn")
+                if not fp.f3_calibrated:  # the other walks are too few a survey: w3 not learned
+                    report["f3"] = fp.f3_note
+                    continue
                 pred = fp.predict_walk(w, model.graph.p_xy_m)
                 # Each scan discounted for its correlation with the previous one, as when
                 # tracking: a score times its share is the Gaussian with Σ / share.
@@ -157,7 +160,8 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
                 wifi = {int(np.argmin(np.abs(st.t_ms - tp))): (mu, cov / sh)
                         for (tp, mu, cov), sh in zip(pred, shares) if sh > 0.0}
                 data.append((walk_features(model, st.vectors_m(model.step_model), t, wifi=wifi), clamp))
-            fit = learn_weights(model, data, learn=("f3",), max_iter=10)
+            if data:
+                fit = learn_weights(model, data, learn=("f3",), max_iter=10)
         model = model.with_(weights=fit.weights)
         report["weights"] = {k: round(v, 3) for k, v in fit.weights.items()}
         report["log_likelihood"] = round(fit.log_likelihood, 2)

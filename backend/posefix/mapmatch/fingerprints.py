@@ -74,6 +74,13 @@ MISSING_DBM = -100.0
 # the scans.
 UNCALIBRATED_PEAK_SIGMA: float | None = None
 
+# Survey walks f3 needs. Its Σ scale and walk-long correlation ρ are measured by holding
+# walks out, and a walk's shared error (phone, body, route) is one draw per walk: with one
+# walk nothing is held out; with two each is predicted from a one-route map, unlike the
+# tracking map, and ρ rests on two draws. Below this f3 is left out, as f4 is when its σ
+# cannot be calibrated: an uncalibrated f3 made every data/ walk "converge" 30-45 m off.
+MIN_SURVEY_WALKS_F3 = 3
+
 
 @dataclass
 class FingerprintMap:
@@ -103,6 +110,8 @@ class FingerprintMap:
     walk_id: np.ndarray | None = None  # (N,) which survey walk each fingerprint came from
     t_s: np.ndarray | None = None  # (N,) when each fingerprint was scanned (s), for calibrate_walk_corr
     walk_corr: float = 0.0  # f3 errors' walk-long correlation ρ (calibrate_walk_corr; Tracker caps f3 with it)
+    f3_calibrated: bool = True  # False: the survey could not calibrate f3, track_walk leaves it out
+    f3_note: str = ""  # why f3 is left out (f3_calibration)
 
     def __post_init__(self):
         if self.method not in ("knn", "pathloss", "hybrid"):
@@ -203,7 +212,10 @@ class FingerprintMap:
         return mu, cov
 
     def predict_walk(self, walk: Walk, vertices_xy_m: np.ndarray | None = None):
-        """[(t_ms, μ, Σ)] for every scan of a walk that predicts a position."""
+        """[(t_ms, μ, Σ)] for every scan of a walk that predicts a position; none when f3 is
+        not calibrated (``f3_calibrated`` False, :data:`MIN_SURVEY_WALKS_F3`)."""
+        if not self.f3_calibrated:
+            return []
         out = []
         for t_ms, scan in wifi_scans(walk, self.max_age_ms, self.scan_time):
             r = self.predict(scan, vertices_xy_m)
@@ -319,11 +331,28 @@ def build_fingerprints(walks: list[Walk], method: str = "knn", vertices_xy_m: np
     fp = FingerprintMap(bssids=bssids, p_xy_m=np.asarray(pos, dtype=float), rssi_dbm=r, method=method,
                         vertices_xy_m=vertices_xy_m, max_age_ms=max_age_ms, scan_time=scan_time,
                         walk_id=np.asarray(wid, dtype=np.int32), t_s=np.asarray(t_s, dtype=float), **options)
+    rho = None
     if calibrate:
         fp.cov_scale, fp.outlier_frac, fp.scale_match_db, fp.scale_by_match = calibrate_covariance(fp)
         fp.peak_sigma_m = calibrate_peak_sigma(fp)
-        fp.walk_corr = calibrate_walk_corr(fp)
+        rho = calibrate_walk_corr(fp)
+        fp.walk_corr = 0.0 if rho is None else rho
+    fp.f3_calibrated, fp.f3_note = f3_calibration(int(np.unique(fp.walk_id).size), calibrate, rho)
     return fp
+
+
+def f3_calibration(n_walks: int, calibrated: bool, walk_corr: float | None) -> tuple[bool, str]:
+    """(f3 usable, why not): f3 needs :data:`MIN_SURVEY_WALKS_F3` survey walks with WiFi and
+    a measured walk-long correlation (:func:`calibrate_walk_corr` not None)."""
+    if not calibrated:
+        return False, "f3 left out: not calibrated (calibrate=False)"
+    if n_walks < MIN_SURVEY_WALKS_F3:
+        return False, (f"f3 left out: {n_walks} survey walk{'s' if n_walks != 1 else ''} with WiFi cannot calibrate "
+                       f"its error and walk-long correlation (needs {MIN_SURVEY_WALKS_F3})")
+    if walk_corr is None:
+        return False, (f"f3 left out: its walk-long correlation needs {MIN_PAIRS_TO_CALIBRATE} held-out scan pairs "
+                       f"≥ {WALK_CORR_MIN_LAG_S:.0f} s apart (longer survey walks)")
+    return True, ""
 
 
 CHI2_2_MEDIAN = 2.0 * np.log(2.0)  # median of a χ² with 2 degrees of freedom
@@ -403,7 +432,7 @@ MIN_PAIRS_TO_CALIBRATE = 20
 
 
 def calibrate_walk_corr(fp: FingerprintMap, folds: int = 5, min_lag_s: float = WALK_CORR_MIN_LAG_S,
-                        min_pairs: int = MIN_PAIRS_TO_CALIBRATE) -> float:
+                        min_pairs: int = MIN_PAIRS_TO_CALIBRATE) -> float | None:
     """Correlation ρ of f3's errors between scans of one walk far apart in time, on the survey.
 
     A walk's WiFi fixes share an error that does not decay while it walks (the phone, how it
@@ -412,11 +441,12 @@ def calibrate_walk_corr(fp: FingerprintMap, folds: int = 5, min_lag_s: float = W
     groups as in :func:`calibrate_covariance`; each held-out scan's error is whitened by its
     predicted Σ (u = L⁻¹(μ - p), Σ = L Lᵀ, so the figure is on the scale the tracker weighs
     it), and over pairs of one walk at least ``min_lag_s`` apart
-    ``ρ = Σ u_i·u_j / Σ ½(|u_i|² + |u_j|²)`` (clipped to [0, 0.9]). 0 when there are fewer
-    than ``min_pairs`` pairs (no times, one walk, short walks): the AR(1) discount alone.
+    ``ρ = Σ u_i·u_j / Σ ½(|u_i|² + |u_j|²)`` (clipped to [0, 0.9]). None (not measured: f3
+    is left out, :func:`f3_calibration`) when there are fewer than ``min_pairs`` pairs (no
+    times, one walk, short walks).
     """
     if fp.walk_id is None or fp.t_s is None or np.unique(fp.walk_id).size < 2:
-        return 0.0
+        return None
     ids = np.unique(fp.walk_id)
     group = {w: i % folds for i, w in enumerate(ids)}
     g = np.array([group[w] for w in fp.walk_id.tolist()])
@@ -442,7 +472,7 @@ def calibrate_walk_corr(fp: FingerprintMap, folds: int = 5, min_lag_s: float = W
         den += float(np.sum(0.5 * (np.sum(u[rows[i]] ** 2, axis=1) + np.sum(u[rows[j]] ** 2, axis=1))))
         pairs += i.size
     if pairs < min_pairs or den <= 0.0:
-        return 0.0
+        return None
     return float(np.clip(num / den, 0.0, 0.9))
 
 
@@ -500,9 +530,12 @@ def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5,
 def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
     """Write ``.npz`` (members ``format``, ``version``, ``bssids``, ``p_xy_m``, ``rssi_dbm`` and the
     calibration: ``cov_scale``, ``outlier_frac``, ``peak_sigma_m`` (absent when f4's σ is not
-    calibrated), ``scale_match_db``, ``scale_by_match``, ``walk_corr``); returns bytes."""
+    calibrated), ``scale_match_db``, ``scale_by_match``, ``walk_corr``, ``f3_calibrated`` (0/1)
+    and ``f3_note``); returns bytes."""
     extra = {} if fp.peak_sigma_m is None else {"peak_sigma_m": np.array(fp.peak_sigma_m)}
     extra["walk_corr"] = np.array(fp.walk_corr)
+    extra["f3_calibrated"] = np.array(int(fp.f3_calibrated), dtype=np.int8)
+    extra["f3_note"] = np.array(fp.f3_note)
     with open(path, "wb") as fh:
         np.savez_compressed(fh, format=np.array("posefix-fingerprints"), version=np.array(2, dtype=np.int32),
                             bssids=fp.bssids.astype(str), p_xy_m=fp.p_xy_m, rssi_dbm=fp.rssi_dbm,
@@ -537,6 +570,13 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
             if not (np.isfinite(rho) and 0.0 <= rho < 1.0):
                 raise ValueError(f"{path}:0: field walk_corr: must be a number in [0, 1), got {rho}")
             table["walk_corr"] = rho
+        # Files before it: f3 on, as they were tracked (their calibration cannot be judged).
+        if "f3_calibrated" in z.files:
+            flag = int(z["f3_calibrated"])
+            if flag not in (0, 1):
+                raise ValueError(f"{path}:0: field f3_calibrated: must be 0 or 1, got {flag}")
+            table["f3_calibrated"] = bool(flag)
+            table["f3_note"] = str(z["f3_note"]) if "f3_note" in z.files else ""
         if "scale_match_db" in z.files and z["scale_match_db"].size:
             if z["scale_match_db"].shape != z["scale_by_match"].shape:
                 raise ValueError(f"{path}:0: field scale_by_match: shape differs from scale_match_db")

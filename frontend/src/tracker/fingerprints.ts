@@ -37,6 +37,10 @@ export interface FingerprintMap {
   covScale: number;
   /** f3 errors' walk-long correlation ρ (member `walk_corr`; 0 when absent): caps a walk's WiFi information at 1/ρ scans. */
   walkCorr: number;
+  /** False when the survey could not calibrate f3 (member `f3_calibrated` 0; true when absent): trackWalk leaves it out, as Python does. */
+  f3Calibrated: boolean;
+  /** Why f3 is left out (member `f3_note`; "" when absent). */
+  f3Note: string;
   scaleDb: Float64Array | null;
   scaleBy: Float64Array | null;
   peakXY: Map<string, [number, number]>;
@@ -69,12 +73,16 @@ export async function loadFingerprints(bytes: Uint8Array, file = "fingerprints.n
   }
   const walkCorr = scalar(z, "walk_corr", 0);
   if (!(Number.isFinite(walkCorr) && walkCorr >= 0 && walkCorr < 1)) throw new NpzFormatError(file, "walk_corr", `must be a number in [0, 1), got ${walkCorr}`);
+  const f3Calibrated = scalar(z, "f3_calibrated", 1);
+  if (f3Calibrated !== 0 && f3Calibrated !== 1) throw new NpzFormatError(file, "f3_calibrated", `must be 0 or 1, got ${f3Calibrated}`);
+  const note = z.get("f3_note")?.data;
   const sd = z.get("scale_match_db")?.data as Float64Array | undefined;
   const sb = z.get("scale_by_match")?.data as Float64Array | undefined;
   if (sd && sd.length && (!sb || sb.length !== sd.length)) throw new NpzFormatError(file, "scale_by_match", "shape differs from scale_match_db");
   const fp: FingerprintMap = {
     bssids, col: new Map(bssids.map((b, i) => [b, i])), px, py, rssi, n, a, k: 5, sigma0_m: 2, minCommon: 3, peakDbm: -55, peakSigma,
-    covScale: scalar(z, "cov_scale", 1), walkCorr, scaleDb: sd && sd.length ? Float64Array.from(sd) : null, scaleBy: sd && sd.length ? Float64Array.from(sb!) : null,
+    covScale: scalar(z, "cov_scale", 1), walkCorr, f3Calibrated: f3Calibrated === 1,
+    f3Note: Array.isArray(note) ? String(note[0]) : "", scaleDb: sd && sd.length ? Float64Array.from(sd) : null, scaleBy: sd && sd.length ? Float64Array.from(sb!) : null,
     peakXY: new Map(),
   };
   for (let j = 0; j < a; j++) {

@@ -269,7 +269,7 @@ export function trackWalk(model: TrackerModel, walk: Walk, start: [number, numbe
   let startWifiT: number | null = null;
   if (fp && n) {
     const scans = wifiScans(walk.wifi);
-    for (const s of scans) {
+    for (const s of fp.f3Calibrated ? scans : []) {  // an uncalibrated f3 is left out, as in Python
       const fix = predictScan(fp, s.rssi);
       if (!fix) continue;
       if (!start && !startWifi && !wifiAt.size && s.t_ms <= steps.t_ms[0]) {
