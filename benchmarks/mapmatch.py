@@ -155,7 +155,7 @@ def run_part(model, walks, survey, loo_survey, args, no_wifi_row: bool = True) -
     if fp_all is not None:
         cap = f"a walk's WiFi counts at most {1 / fp_all.walk_corr:.1f} fixes" if fp_all.walk_corr > 0 else "not measured"
         print(f"  survey: {fp_all.p_xy_m.shape[0]} scans of {len(survey)} walks; f3 walk-long error correlation "
-              f"ρ = {fp_all.walk_corr:.2f} ({cap})")
+              f"ρ = {fp_all.walk_corr:.2f} ({cap})" + ("" if fp_all.f3_calibrated else f"; {fp_all.f3_note}"))
     for w in walks:
         if w.waypoints.shape[0] < 2:
             continue
@@ -170,6 +170,8 @@ def run_part(model, walks, survey, loo_survey, args, no_wifi_row: bool = True) -
         if args.no_unknown:
             continue
         fp = fp_all if fp_all is not None else build_fingerprints([x for x in loo_survey if x is not w])
+        if fp_all is None and not fp.f3_calibrated:  # the leave-one-out survey of the tuning part
+            print(f"    {part.walks[-1]}: {fp.f3_note}")
         for key, f in ((("c", None),) if no_wifi_row else ()) + (("d", fp),):
             r = track_walk(model, w, start_xy_m=None, fingerprints=f)
             part.err[key].append(evaluate_track(w.waypoints, r.t_ms, r.p_xy_m).err_wp_m)
