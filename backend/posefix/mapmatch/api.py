@@ -1,7 +1,7 @@
 """The map-matching Python API used by the CLI, the server and notebooks.
 
     from posefix.mapmatch import build_model, load_model, save_model, Tracker, track_walk
-    model = build_model("../shared/data/indoor-site1-F1")          # Model
+    model = build_model("data/indoor-site1-F1")                      # Model
     tr = Tracker(model, start_xy_m=(81.3, 93.3))                   # online
     point = tr.step(step_xy_m, t_ms)                               # TrackPoint (vertex, Gaussian summary)
     result = track_walk(model, read_walk("walk.txt"), start_xy_m=None)   # TrackResult, offline
