@@ -22,13 +22,14 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 import subprocess
 import sys
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
+
+from benchmarks.proc import descendants_cpu_s
 
 REPO = Path(__file__).resolve().parents[1]
 FRONTEND = REPO / "frontend"
@@ -72,30 +73,7 @@ def renderer_cpu_s() -> float | None:
     """CPU seconds (user + system) used so far by the Chromium renderer processes this process
     started (Linux /proc; None elsewhere): the browser side's CPU time, as the server's is
     measured, so that both can be compared on a loaded machine."""
-    proc = Path("/proc")
-    if not (proc / "self" / "stat").exists():
-        return None
-    parent: dict[int, int] = {}
-    for d in proc.iterdir():
-        if d.name.isdigit():
-            try:
-                parent[int(d.name)] = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-    mine, frontier = set(), {os.getpid()}
-    while frontier:
-        frontier = {p for p, pp in parent.items() if pp in frontier} - mine
-        mine |= frontier
-    total, tick = 0.0, os.sysconf("SC_CLK_TCK")
-    for pid in mine:
-        try:
-            if b"--type=renderer" not in (proc / str(pid) / "cmdline").read_bytes():
-                continue
-            f = (proc / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()
-            total += (int(f[11]) + int(f[12])) / tick
-        except (OSError, IndexError, ValueError):
-            continue
-    return total
+    return descendants_cpu_s(b"--type=renderer")
 
 
 def bundle() -> str:

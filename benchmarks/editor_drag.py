@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from tests.e2e.helpers import keyframe_px, login  # noqa: E402
 from tests.e2e.serverkit import chromium, ensure_frontend_built, running_server  # noqa: E402
+from benchmarks.proc import descendants_cpu_s  # noqa: E402
 
 BUDGET_MS = 1000 / 60
 RULES = "[rules]\nevery_n = 1\nlock_n = 0\nmax_move_m = 10000.0\n"
@@ -57,31 +58,10 @@ WHEEL_PX = 300
 EDITOR_LAYERS = "() => window.__posefixMap.getStyle().layers.map(l => l.id).filter(id => id.startsWith('pf-'))"
 
 
-def chromium_cpu_s() -> float:
+def chromium_cpu_s() -> float | None:
     """CPU seconds (user + system) so far of the Chromium processes under this one (Linux /proc):
     the renderer and the GPU process, where software WebGL draws."""
-    proc, tick = Path("/proc"), os.sysconf("SC_CLK_TCK")
-    parent: dict[int, int] = {}
-    for d in proc.iterdir():
-        if d.name.isdigit():
-            try:
-                parent[int(d.name)] = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-    mine, frontier = set(), {os.getpid()}
-    while frontier:
-        frontier = {p for p, pp in parent.items() if pp in frontier} - mine
-        mine |= frontier
-    total = 0.0
-    for pid in mine:
-        try:
-            if b"chrom" not in (proc / str(pid) / "cmdline").read_bytes():
-                continue
-            f = (proc / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()
-            total += (int(f[11]) + int(f[12])) / tick
-        except (OSError, IndexError, ValueError):
-            continue
-    return total
+    return descendants_cpu_s(b"chrom")
 
 
 def wheel_zoom(page, at: tuple[float, float], steps: int, view: dict) -> tuple[list[float], list[float], float, float]:
