@@ -110,6 +110,7 @@ def test_cli_track_with_fingerprints_takes_the_wifi_correlation_time(model, tmp_
     # data/ holds too few walks to calibrate f3: the command says so, and tracking leaves it
     # out; the option's plumbing is checked with f3 switched on by hand.
     assert "f3 left out: 2 survey walks" in out.output
+    assert "f3 not calibrated" in out.output and "covariance scale" not in out.output
     fp = load_fingerprints(tmp_path / "fp.npz")
     assert not fp.f3_calibrated
     fp.f3_calibrated = True

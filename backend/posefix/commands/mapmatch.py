@@ -97,12 +97,19 @@ def fingerprints(floor: Path, walks: tuple[Path, ...], output: Path) -> None:
             size = save_fingerprints(fp, tmp)
         click.echo(f"fingerprints: {fp.p_xy_m.shape[0]} scans, {fp.bssids.size} access points "
                    f"({fp.n_fitted_aps} with a fitted position), {len(fp.peak_xy_m)} peaks; "
-                   f"covariance scale {fp.cov_scale:.2f} (held-out calibration), outlier rate "
-                   f"{fp.outlier_frac:.2f}, walk-long error correlation {fp.walk_corr:.2f}; "
+                   f"{_f3_calibration_words(fp)}; "
                    f"{size / 1024:.1f} KiB -> {output}")
         if not fp.f3_calibrated:
             click.echo(f"warning: {fp.f3_note}; tracking with this file uses no WiFi fingerprints "
                        f"(f4 {'on' if fp.peak_sigma_m is not None else 'off too'})", err=True)
+
+
+def _f3_calibration_words(fp) -> str:
+    """What the survey measured of f3's error, or that it could not."""
+    if not fp.f3_calibrated:
+        return "f3 not calibrated (see the warning)"
+    return (f"covariance scale {fp.cov_scale:.2f} (held-out calibration), outlier rate "
+            f"{fp.outlier_frac:.2f}, walk-long error correlation {fp.walk_corr:.2f}")
 
 
 @mm.command("train", context_settings=CONTEXT)
