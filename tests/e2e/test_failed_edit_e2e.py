@@ -16,11 +16,12 @@ pytestmark = pytest.mark.e2e
 
 
 def _rules_beyond_the_settings(server, run_id: int) -> None:
-    """Rules stored before settings were bounded (max_move_m far beyond 10 km): only the
-    altitude check stands between a 553 km drag and an exported run."""
+    """Rules stored before settings were bounded (max_move_m far beyond 10 km), with reversals
+    flagged rather than refused: only the altitude check stands between a 553 km drag and an
+    exported run."""
     with sqlite3.connect(server.srv.data_dir / "posefix.sqlite") as db:
         (rules,) = db.execute("SELECT rules FROM runs WHERE id = ?", (run_id,)).fetchone()
-        db.execute("UPDATE runs SET rules = ? WHERE id = ?", (json.dumps({**json.loads(rules), "max_move_m": 1e9}), run_id))
+        db.execute("UPDATE runs SET rules = ? WHERE id = ?", (json.dumps({**json.loads(rules), "max_move_m": 1e9, "order_rule": "flag"}), run_id))
 
 
 def _wait_dead(client, job_id: int, timeout_s: float = 60.0) -> dict:
