@@ -41,4 +41,6 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    pass  # 10 km is a valid setting under the old rules too
+    # Nothing to undo: the old code reads 10 km as a limit as well, and which rules held 0 or
+    # more than 10 km before the upgrade is not recorded.
+    return None

@@ -91,7 +91,7 @@ def compute_consensus(session: Session, tr: TaskRun, task: Task, done: list[Assi
     x_m, valid, origin = wg.x_m, wg.valid, wg.origin
     fused_m = np.where(np.isnan(wg.fused.t_m), x_m[0], wg.fused.t_m)  # a keyframe all deleted: removed anyway
     if reoptimise is not None:
-        moves, deleted, _ = merged_edits(session, tr, done, wg=wg)
+        moves, deleted, _, _ = merged_edits(session, tr, done, wg=wg)
         solved = np.asarray(reoptimise({"moves": [[m.index, m.lon, m.lat, m.alt] for m in moves], "deleted": deleted, "flags": []}))
         lon, lat = solved[:, 0], solved[:, 1]
         fused_m = local_m(lon, lat, origin)

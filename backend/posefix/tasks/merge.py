@@ -61,17 +61,18 @@ def maybe_merge(session: Session, tr: TaskRun, now: dt.datetime, *, actor_id: in
 
 
 def merged_edits(session: Session, tr: TaskRun, subs: list[Assignment], contributors: set[int] | None = None,
-                 wg: Weighing | None = None) -> tuple[list[MoveIn], list[int], dict[str, Any]]:
+                 wg: Weighing | None = None) -> tuple[list[MoveIn], list[int], dict[str, Any], Weighing | None]:
     """Moves and deletions of the merged result: one submission's own edits, or the
     operator-weighted fusion (``weighing``) of the contributors' corrected tracks at every
     keyframe any of them moved; a keyframe is deleted when most contributors deleted it.
-    ``contributors``: the assignment ids whose work is merged (default: all of ``subs``)."""
+    ``contributors``: the assignment ids whose work is merged (default: all of ``subs``).
+    Also returns the JSON detail and the weighing the fusion used (``wg`` for one submission)."""
     ids = contributors if contributors is not None else {a.id for a in subs}
     approved = [a for a in subs if a.id in ids]
     if len(approved) == 1:
         es = approved[0].edit_set or {}
         moves = [MoveIn(index=int(m[0]), lon=m[1], lat=m[2], alt=m[3]) for m in es.get("moves", [])]
-        return moves, [int(d) for d in es.get("deleted", [])], {"from": [approved[0].id], "method": "single"}
+        return moves, [int(d) for d in es.get("deleted", [])], {"from": [approved[0].id], "method": "single"}, wg
     wg = wg or weigh(session, tr, subs, ids)
     # work that carries (almost) no weight is left out altogether, so it cannot pull at all
     outweighed = {aid for aid, w in zip(wg.ids, wg.weight_share) if aid in ids and w < MIN_SHARE}
@@ -94,8 +95,7 @@ def merged_edits(session: Session, tr: TaskRun, subs: list[Assignment], contribu
     weights = {str(aid): round(float(w), 4) for aid, w in zip(wg.ids, share) if aid in ids}
     sig = wg.fused.sigma_m[keep] if keep else np.array([])
     return moves, deleted, {"from": sorted(ids), "outweighed": sorted(outweighed), "method": wg.method, "weights": weights,
-                            "sigma_m": None if not len(sig) or np.all(np.isnan(sig)) else round(float(np.nanmedian(sig)), 3),
-                            "_weighing": wg}
+                            "sigma_m": None if not len(sig) or np.all(np.isnan(sig)) else round(float(np.nanmedian(sig)), 3)}, wg
 
 
 def merge_safe(session: Session, tr: TaskRun, moves: list[MoveIn], wg: Weighing) -> str | None:
@@ -218,8 +218,7 @@ def merge_task_run(session: Session, settings: Settings, task_run_id: int, actor
     subs = [a for a in repo.run_assignments(session, tr.id) if a.status in (AssignmentStatus.approved, AssignmentStatus.rejected)
             and a.evaluated_at is not None]
     wg = weigh(session, tr, subs, {a.id for a in approved}) if len(subs) > 1 else None
-    moves, deleted, detail = merged_edits(session, tr, subs, {a.id for a in approved}, wg=wg)
-    wg = detail.pop("_weighing", wg)
+    moves, deleted, detail, wg = merged_edits(session, tr, subs, {a.id for a in approved}, wg=wg)
     why = merge_safe(session, tr, moves, wg) if wg is not None else None
     if why is not None:
         return _stop(session, task, tr, why, detail, actor_id, now)
