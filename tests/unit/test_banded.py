@@ -21,13 +21,24 @@ def random_system(rng, n: int, b: int, ridge: float = 1.0):
     return D, U
 
 
+# banded.factor calls numpy's own LAPACK where it finds it; the cyclic reduction stands in elsewhere
+FACTORS = [banded.factor, banded.factor_reduction]
+
+
+def test_numpy_wheel_lapack_is_found():
+    # this project's numpy wheels ship it: the fast path must not fall back silently here
+    assert banded._lapack() is not None
+    assert isinstance(banded.factor(*random_system(np.random.default_rng(0), 5, 6)), banded.BandFactor)
+
+
 @pytest.mark.parametrize("n", [1, 2, 3, 7, 8, 9, 17, 121, 1500])
 @pytest.mark.parametrize("b", [3, 6])
-def test_solve_matches_lapack_banded_cholesky(n, b):
+@pytest.mark.parametrize("factor", FACTORS)
+def test_solve_matches_lapack_banded_cholesky(n, b, factor):
     rng = np.random.default_rng(n * 10 + b)
     D, U = random_system(rng, n, b)
     rhs = rng.normal(size=(n * b, 3))
-    x = banded.solve(banded.factor(D, U), rhs)
+    x = banded.solve(factor(D, U), rhs)
     ab = np.zeros((2 * b, n * b))  # LAPACK upper band of the same matrix, built entry by entry
     dense = np.zeros((n * b, n * b))
     for k in range(n):
@@ -46,7 +57,8 @@ def test_solve_matches_lapack_banded_cholesky(n, b):
     v = rng.normal(size=n * b)
     assert np.allclose(banded.upper_band_matvec(ab, v), dense @ v, rtol=1e-12, atol=1e-12)
     assert np.allclose(banded.matvec(D, U, v), dense @ v, rtol=1e-12, atol=1e-12)
-    assert np.allclose(banded.solve(banded.factor(D, U), rhs[:, 0]), x[:, 0])
+    assert np.allclose(banded.solve(factor(D, U), rhs[:, 0]), x[:, 0])
+    assert np.array_equal(banded.pack_upper(D, U), ab)
 
 
 def test_large_batches_take_the_entry_by_entry_path():
@@ -54,7 +66,7 @@ def test_large_batches_take_the_entry_by_entry_path():
     n = 2 * banded.BATCHED_LAPACK_BELOW + 5
     D, U = random_system(rng, n, 6)
     rhs = rng.normal(size=6 * n)
-    x = banded.solve(banded.factor(D, U), rhs)
+    x = banded.solve(banded.factor_reduction(D, U), rhs)
     assert np.allclose(x, solveh_banded(pack_banded(D, U), rhs), rtol=1e-9, atol=1e-12)
 
 
@@ -63,16 +75,25 @@ def test_long_systems_agree_with_lapack():
     n = 20_000
     D, U = random_system(rng, n, 6)
     rhs = rng.normal(size=(6 * n, 2))
+    ref = solveh_banded(pack_banded(D, U), rhs)
     x = banded.solve(banded.factor_band(pack_banded(D, U), 6), rhs)
-    assert np.allclose(x, solveh_banded(pack_banded(D, U), rhs), rtol=1e-9, atol=1e-12)
+    assert np.allclose(x, ref, rtol=1e-9, atol=1e-12)
+    assert np.allclose(banded.solve(banded.factor_reduction(D, U), rhs), ref, rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("n", [1, 5, 3000])
-def test_not_positive_definite_raises(n):
+@pytest.mark.parametrize("factor", FACTORS)
+@pytest.mark.parametrize("bad", ["negative", "nan"])
+def test_not_positive_definite_raises(n, factor, bad):
     D, U = random_system(np.random.default_rng(1), n, 6)
-    D[n // 2] = -np.eye(6)
+    if bad == "negative":
+        D[n // 2] = -np.eye(6)
+    elif n > 1:
+        U[n // 2 - 1, 1, 4] = np.nan
+    else:
+        D[0, 1, 4] = D[0, 4, 1] = np.nan
     with pytest.raises(banded.LinAlgError):
-        banded.factor(D, U)
+        factor(D, U)
 
 
 def test_solver_band_form_round_trips():

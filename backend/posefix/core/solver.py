@@ -6,8 +6,8 @@ Two paths reach the same minimum:
   ``(J^T J + lambda diag(J^T J)) dx = -J^T r``.  Every term links at most two neighbouring
   keyframes, so with the state ordered keyframe by keyframe (6 unknowns each) ``J^T J`` is
   symmetric block-tridiagonal: a band of 11 super-diagonals.  It is stored in LAPACK's
-  upper banded form and factorised by ``banded.factor`` (block cyclic reduction: Cholesky in
-  an odd-even order, O(k * 6^3), numpy only).  The robust location loss is already inside the residual (see terms.py), so
+  upper banded form and factorised by ``banded.factor`` (LAPACK's banded Cholesky from
+  numpy's own OpenBLAS, else block cyclic reduction in numpy; O(k * 6^3)).  The robust location loss is already inside the residual (see terms.py), so
   the Gauss-Newton model is that of the exact cost; the gain ratio steers lambda
   (Nielsen's rule: lambda *= max(1/3, 1 - (2 rho - 1)^3) on success, *= nu, nu *= 2 on failure).
 * ``solver_reference.solve_scipy`` (reference path; ``solver_reference.solve`` dispatches between the two): ``scipy.optimize.least_squares`` (trust region
@@ -339,12 +339,13 @@ def solve_banded(
     )
 
 
-def factor_banded_spd(ab: np.ndarray) -> banded.Factor:
-    """Factor of A symmetric positive definite given in upper band form ab (12, 6k)."""
-    return banded.factor_band(ab, 6)
+def factor_banded_spd(ab: np.ndarray, overwrite: bool = False) -> banded.Factor | banded.BandFactor:
+    """Factor of A symmetric positive definite given in upper band form ab (12, 6k)
+    (``overwrite``: ab, Fortran-ordered, may hold the factor afterwards)."""
+    return banded.factor_upper(ab, 6, overwrite=overwrite)
 
 
-def solve_with_factor(c: banded.Factor, b: np.ndarray) -> np.ndarray:
+def solve_with_factor(c: banded.Factor | banded.BandFactor, b: np.ndarray) -> np.ndarray:
     """Solve A x = b given the factor of A (``factor_banded_spd``)."""
     return banded.solve(c, b)
 
@@ -440,7 +441,7 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
             if factor is None or last > CHORD_AFTER_STEPS * step_tol_m:
                 ab = ab_s.copy(order="F")
                 ab.reshape(-1, order="F")[band_flat] += H_loc.reshape(-1, 9)[free[:, None], tri].ravel()
-                factor = factor_banded_spd(ab)
+                factor = factor_banded_spd(ab, overwrite=True)
                 chord = False
             else:
                 # after a step of a few decimetres the location Hessian (metres of sigma) has hardly
