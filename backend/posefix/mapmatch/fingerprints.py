@@ -13,8 +13,12 @@ access points the scan heard, ``d_i = sqrt(mean_a (r_a - R_ia)²)`` (``similarit
 the k nearest with weights ``1 / (d_i + 1 dB)`` give the mean position μ and covariance
 ``Σ = s·(Σ_i w_i (p_i - μ)(p_i - μ)ᵀ + σ0² I)`` with σ0 = 2 m (a survey point's own
 uncertainty) and s the scale :func:`calibrate_covariance` fits on the survey itself (per
-quartile of the best match's distance for k-NN). Scans sharing fewer than ``min_common``
-access points with the map predict nothing.
+quartile of the best match's distance for k-NN) so that 86.5 % of the held-out fixes fall
+inside their 2σ ellipse. Scans sharing fewer than ``min_common`` access points with the map
+predict nothing. Tracking uses the heavy-tailed form (``robust``, the default)
+``f3(v) = log((1 - ε)·c²·N(p_v; μ, Σ) + ε/V)``, ε the survey's outlier rate: a fix from
+beyond the surveyed corridors (k-NN can only answer a surveyed place) costs the places
+far from it at most ``-log(ε/V)`` nats however far they are, not their squared distance.
 
 Path-loss alternative (``method="pathloss"``), for floors where the survey is sparse: each
 access point heard at least 4 times (once ≥ -75 dBm) gets a position a and power P0 fitted
@@ -106,7 +110,7 @@ class FingerprintMap:
     outlier_frac: float = 0.0  # ε of f3's robust form, calibrated with cov_scale
     scale_match_db: np.ndarray | None = None  # k-NN: Σ scale as a function of the best match's
     scale_by_match: np.ndarray | None = None  # RMS dB distance (calibrate_covariance); None: cov_scale
-    robust: bool = False  # track with f3's robust form (off: measured worse on site1, see docs)
+    robust: bool = True  # track with f3's heavy-tailed form (ε = outlier_frac; module docstring)
     walk_id: np.ndarray | None = None  # (N,) which survey walk each fingerprint came from
     t_s: np.ndarray | None = None  # (N,) when each fingerprint was scanned (s), for calibrate_walk_corr
     walk_corr: float = 0.0  # f3 errors' walk-long correlation ρ (calibrate_walk_corr; Tracker caps f3 with it)
@@ -357,6 +361,11 @@ def f3_calibration(n_walks: int, calibrated: bool, walk_corr: float | None) -> t
 
 CHI2_2_MEDIAN = 2.0 * np.log(2.0)  # median of a χ² with 2 degrees of freedom
 CHI2_2_Q99 = -2.0 * np.log(0.01)  # its 99 % point (9.21)
+# Share of held-out survey fixes Σ's scale puts inside their 2σ ellipse: a Gaussian's own
+# 1 - e⁻² (86.5 %), i.e. the χ²₂ point 4. The tracker's ellipses answer for 2σ coverage,
+# and k-NN errors are heavy-tailed (a scan beyond the survey matches the nearest surveyed
+# place), so a scale fitted to the median (the bulk) left the tail's fixes 2-3x too sure.
+CALIBRATION_COVER = 1.0 - float(np.exp(-2.0))
 
 
 def calibrate_covariance(fp: FingerprintMap, folds: int = 5, vertices_xy_m: np.ndarray | None = None,
@@ -364,10 +373,12 @@ def calibrate_covariance(fp: FingerprintMap, folds: int = 5, vertices_xy_m: np.n
     """Σ scale that makes the predictions' Mahalanobis distances honest on the survey itself.
 
     The survey walks are split into ``folds`` groups (by ``fp.walk_id``); each group's scans
-    are predicted from a map of the other groups, and ``s = median(m²) / median(χ²₂)`` with
-    ``m² = (p - μ)ᵀ Σ⁻¹ (p - μ)`` for the scan's surveyed position p (never below 1). The
-    median, not the mean: the errors are heavy-tailed (a scan now and then matches the
-    wrong wing), and the Gaussian should describe the bulk.
+    are predicted from a map of the other groups, and ``s = q(m²) / χ²₂(q)`` with
+    ``m² = (p - μ)ᵀ Σ⁻¹ (p - μ)`` for the scan's surveyed position p and q =
+    :data:`CALIBRATION_COVER` (86.5 %: the scaled 2σ ellipse holds that share of the
+    held-out fixes; never below 1). A quantile, not the mean: the errors are heavy-tailed
+    (a scan now and then matches the wrong wing), and the tail beyond 99 % is f3's outlier
+    rate ε, not a wider Gaussian.
 
     k-NN errors grow with how badly the scan matches its best fingerprint (d_min, RMS dB:
     a scan far from any survey point matches none well; on site1/F1 the held-out median
@@ -407,7 +418,9 @@ def calibrate_covariance(fp: FingerprintMap, folds: int = 5, vertices_xy_m: np.n
     if not m2:
         return 1.0, 0.0, None, None
     m2a, da = np.asarray(m2), np.asarray(dmin)
-    scale = max(1.0, float(np.median(m2a)) / CHI2_2_MEDIAN)
+    qq = CALIBRATION_COVER
+    chi = -2.0 * np.log(1.0 - qq)  # its χ²₂ point (4 for 2σ)
+    scale = max(1.0, float(np.quantile(m2a, qq)) / chi)
     d_db = s_by_d = None
     per_scan = np.full(m2a.size, scale)
     if fp.method == "knn" and m2a.size >= 10 * bins:
@@ -415,7 +428,7 @@ def calibrate_covariance(fp: FingerprintMap, folds: int = 5, vertices_xy_m: np.n
         which = np.clip(np.searchsorted(edges, da, side="right") - 1, 0, bins - 1)
         d_db = np.array([np.median(da[which == b]) for b in range(bins)])
         s_by_d = np.maximum.accumulate(
-            np.array([max(1.0, float(np.median(m2a[which == b])) / CHI2_2_MEDIAN) for b in range(bins)]))
+            np.array([max(1.0, float(np.quantile(m2a[which == b], qq)) / chi) for b in range(bins)]))
         per_scan = np.interp(da, d_db, s_by_d)
     # Beyond the χ²₂ 99 % point a Gaussian leaves 1 %; the excess is the outlier rate.
     outlier = float(np.mean(m2a / per_scan > CHI2_2_Q99)) - 0.01
@@ -530,12 +543,13 @@ def calibrate_peak_sigma(fp: FingerprintMap, folds: int = 5,
 def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
     """Write ``.npz`` (members ``format``, ``version``, ``bssids``, ``p_xy_m``, ``rssi_dbm`` and the
     calibration: ``cov_scale``, ``outlier_frac``, ``peak_sigma_m`` (absent when f4's σ is not
-    calibrated), ``scale_match_db``, ``scale_by_match``, ``walk_corr``, ``f3_calibrated`` (0/1)
-    and ``f3_note``); returns bytes."""
+    calibrated), ``scale_match_db``, ``scale_by_match``, ``walk_corr``, ``f3_calibrated`` (0/1),
+    ``f3_note`` and ``f3_robust`` (0/1: f3's heavy-tailed form); returns bytes."""
     extra = {} if fp.peak_sigma_m is None else {"peak_sigma_m": np.array(fp.peak_sigma_m)}
     extra["walk_corr"] = np.array(fp.walk_corr)
     extra["f3_calibrated"] = np.array(int(fp.f3_calibrated), dtype=np.int8)
     extra["f3_note"] = np.array(fp.f3_note)
+    extra["f3_robust"] = np.array(int(fp.robust), dtype=np.int8)
     with open(path, "wb") as fh:
         np.savez_compressed(fh, format=np.array("posefix-fingerprints"), version=np.array(2, dtype=np.int32),
                             bssids=fp.bssids.astype(str), p_xy_m=fp.p_xy_m, rssi_dbm=fp.rssi_dbm,
@@ -577,6 +591,13 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
                 raise ValueError(f"{path}:0: field f3_calibrated: must be 0 or 1, got {flag}")
             table["f3_calibrated"] = bool(flag)
             table["f3_note"] = str(z["f3_note"]) if "f3_note" in z.files else ""
+        # Files before it were tracked with the plain Gaussian f3.
+        table["robust"] = False
+        if "f3_robust" in z.files:
+            flag = int(z["f3_robust"])
+            if flag not in (0, 1):
+                raise ValueError(f"{path}:0: field f3_robust: must be 0 or 1, got {flag}")
+            table["robust"] = bool(flag)
         if "scale_match_db" in z.files and z["scale_match_db"].size:
             if z["scale_match_db"].shape != z["scale_by_match"].shape:
                 raise ValueError(f"{path}:0: field scale_by_match: shape differs from scale_match_db")

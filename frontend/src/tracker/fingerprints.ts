@@ -7,7 +7,8 @@
  *   μ    = Σ w_i p_i,   Σ = s(d_min)·(Σ w_i (p_i − μ)(p_i − μ)ᵀ + (2 m)² I)
  *
  * with s(d_min) the calibrated scale interpolated in the best match's distance (or one
- * scale). A peak: a known access point reading ≥ −55 dBm and more than in the scans just
+ * scale). With `f3_robust` the fix carries the survey's outlier rate ε (`outlier_frac`) and
+ * f3 is the heavy-tailed log((1 − ε)·c²·N(p; μ, Σ) + ε/V), as in Python. A peak: a known access point reading ≥ −55 dBm and more than in the scans just
  * before and after, the strongest one a scan; its observation is (its surveyed peak
  * location, the calibrated σ), none when σ was not calibrated.
  */
@@ -19,6 +20,8 @@ export const MISSING_DBM = -100;
 export interface WifiFix {
   mean: [number, number];
   cov: [number, number, number, number]; // row-major 2x2
+  /** Outlier rate ε of f3's heavy-tailed form (0: the plain Gaussian). */
+  eps?: number;
 }
 
 export interface FingerprintMap {
@@ -41,6 +44,10 @@ export interface FingerprintMap {
   f3Calibrated: boolean;
   /** Why f3 is left out (member `f3_note`; "" when absent). */
   f3Note: string;
+  /** f3's heavy-tailed form (member `f3_robust` 1; false when absent, as those files were tracked). */
+  robust: boolean;
+  /** Its outlier rate ε (member `outlier_frac`; 0 when absent). */
+  outlierFrac: number;
   scaleDb: Float64Array | null;
   scaleBy: Float64Array | null;
   peakXY: Map<string, [number, number]>;
@@ -76,13 +83,17 @@ export async function loadFingerprints(bytes: Uint8Array, file = "fingerprints.n
   const f3Calibrated = scalar(z, "f3_calibrated", 1);
   if (f3Calibrated !== 0 && f3Calibrated !== 1) throw new NpzFormatError(file, "f3_calibrated", `must be 0 or 1, got ${f3Calibrated}`);
   const note = z.get("f3_note")?.data;
+  const robust = scalar(z, "f3_robust", 0);
+  if (robust !== 0 && robust !== 1) throw new NpzFormatError(file, "f3_robust", `must be 0 or 1, got ${robust}`);
+  const outlierFrac = scalar(z, "outlier_frac", 0);
+  if (!(Number.isFinite(outlierFrac) && outlierFrac >= 0 && outlierFrac < 1)) throw new NpzFormatError(file, "outlier_frac", `must be a number in [0, 1), got ${outlierFrac}`);
   const sd = z.get("scale_match_db")?.data as Float64Array | undefined;
   const sb = z.get("scale_by_match")?.data as Float64Array | undefined;
   if (sd && sd.length && (!sb || sb.length !== sd.length)) throw new NpzFormatError(file, "scale_by_match", "shape differs from scale_match_db");
   const fp: FingerprintMap = {
     bssids, col: new Map(bssids.map((b, i) => [b, i])), px, py, rssi, n, a, k: 5, sigma0_m: 2, minCommon: 3, peakDbm: -55, peakSigma,
     covScale: scalar(z, "cov_scale", 1), walkCorr, f3Calibrated: f3Calibrated === 1,
-    f3Note: Array.isArray(note) ? String(note[0]) : "", scaleDb: sd && sd.length ? Float64Array.from(sd) : null, scaleBy: sd && sd.length ? Float64Array.from(sb!) : null,
+    f3Note: Array.isArray(note) ? String(note[0]) : "", robust: robust === 1, outlierFrac, scaleDb: sd && sd.length ? Float64Array.from(sd) : null, scaleBy: sd && sd.length ? Float64Array.from(sb!) : null,
     peakXY: new Map(),
   };
   for (let j = 0; j < a; j++) {
@@ -171,7 +182,7 @@ export function predictScan(fp: FingerprintMap, scan: Map<string, number>): Wifi
   });
   const s = scaleFor(fp, Math.min(...order.map((i) => d[i])));
   const s0 = fp.sigma0_m * fp.sigma0_m;
-  return { mean: [mx, my], cov: [(cxx + s0) * s, cxy * s, cxy * s, (cyy + s0) * s] };
+  return { mean: [mx, my], cov: [(cxx + s0) * s, cxy * s, cxy * s, (cyy + s0) * s], eps: fp.robust ? fp.outlierFrac : 0 };
 }
 
 /** [(t_ms, bssid)] of the scans where a known access point peaks (one a scan, the strongest). */

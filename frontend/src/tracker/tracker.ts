@@ -7,7 +7,8 @@
  *   f2(k) = f1 for s_t rotated by e_t, the heading error of the last w steps of the Viterbi path:
  *           e_t = ∠(p(y_t) − p(y_{t−w})) − ∠(P_t − P_{t−w})   (kept when the span < min_span)
  *   trans_t(k) = w1·f1 + w2·f2
- *   f3(v) = −½ (p_v − μ)ᵀ Σ⁻¹ (p_v − μ) for a WiFi fix (μ, Σ);  f4 the same for a peak (a, σ² I)
+ *   f3(v) = −½ (p_v − μ)ᵀ Σ⁻¹ (p_v − μ) for a WiFi fix (μ, Σ), or with the fix's outlier rate ε
+ *           log((1 − ε)·c²·N(p_v; μ, Σ) + ε/V);  f4 the Gaussian for a peak (a, σ² I)
  *   state_t = w3·share·f3 + w4·share·f4,  share = (1 − ρ)/(1 + ρ), ρ = e^{−Δt/τ}  (Δt since the last of its kind)
  *
  * fed to the Viterbi filter (its path gives e_t) and the forward filter (its marginal is the
@@ -67,6 +68,25 @@ export function gaussianPosition(px: Float64Array, py: Float64Array, mean: reado
     const dx = px[v] - mean[0];
     const dy = py[v] - mean[1];
     o[v] += scale * (-0.5 * (i00 * dx * dx + i01 * dx * dy + i11 * dy * dy));
+  }
+  return o;
+}
+
+/** f3 at every vertex for a fix: the Gaussian, or with ε > 0 its heavy-tailed form
+ * log((1 − ε)·c²·N(p; μ, Σ) + ε/V) (Python's f_robust_position), times `scale`, added to `out`. */
+export function wifiPosition(px: Float64Array, py: Float64Array, fix: WifiFix, cell_m: number, scale = 1, out?: Float64Array): Float64Array {
+  const eps = fix.eps ?? 0;
+  const o = out ?? new Float64Array(px.length);
+  if (!(eps > 0)) return gaussianPosition(px, py, fix.mean, fix.cov, scale, o);
+  const g = gaussianPosition(px, py, fix.mean, fix.cov, 1);
+  const c = fix.cov;
+  const logNorm = Math.log((cell_m * cell_m) / (2 * Math.PI * Math.sqrt(c[0] * c[3] - c[1] * c[2])));
+  const a = Math.log1p(-eps);
+  const b = Math.log(eps / px.length);
+  for (let v = 0; v < px.length; v++) {
+    const x = a + g[v] + logNorm;
+    const hi = Math.max(x, b);
+    o[v] += scale * (hi + Math.log1p(Math.exp(Math.min(x, b) - hi)));
   }
   return o;
 }
@@ -133,7 +153,7 @@ export class Tracker {
     const start = opts.start ?? null;
     let prior = startLogPrior(model, start, opts.startSigma_m ?? 1);
     if (!start && opts.startWifi) {
-      prior = gaussianPosition(model.graph.px, model.graph.py, opts.startWifi.mean, opts.startWifi.cov);
+      prior = wifiPosition(model.graph.px, model.graph.py, opts.startWifi, model.graph.cell_m);
       this.lastObs.f3 = Math.trunc(opts.startWifiT_ms ?? opts.t0_ms ?? 0);
       this.nEff.f3 = 1;
     }
@@ -205,7 +225,7 @@ export class Tracker {
     const g = m.graph;
     let out: Float64Array | null = null;
     if (wifi && m.weights.f3 !== 0) {
-      out = gaussianPosition(g.px, g.py, wifi.mean, wifi.cov, m.weights.f3 * this.share("f3", wifiT));
+      out = wifiPosition(g.px, g.py, wifi, g.cell_m, m.weights.f3 * this.share("f3", wifiT));
     }
     if (peak && m.weights.f4 !== 0) {
       const v = peak.sigma_m * peak.sigma_m;
