@@ -10,9 +10,18 @@ import pytest
 
 from posefix.io import OrientationDerivedWarning, RunFormatError, read_run, write_run
 from posefix.io.atomic import atomic_write
+from posefix.io import csv as csv_module
 from posefix.io.csv import read_csv
 
 from .io_helpers import leftovers, small_run
+
+
+@pytest.fixture(autouse=True, params=["stdlib", "arrow"])
+def reader(request, monkeypatch):
+    """Every case on both readers: small files by the standard library, the rest by Arrow."""
+    if request.param == "arrow":
+        monkeypatch.setattr(csv_module, "SMALL_FILE_BYTES", 0)
+    return request.param
 
 HEADER = "t,lat,lon,alt,qw,qx,qy,qz"
 GOOD = [
@@ -173,3 +182,31 @@ def test_bom_crlf_and_spaced_header_names(tmp_path):
     with pytest.raises(RunFormatError) as info:
         read_run(p)
     assert (info.value.line, info.value.field) == (5, "qw")
+
+
+def test_both_readers_give_the_same_run(tmp_path):
+    run = small_run()
+    out = tmp_path / "out.csv"
+    write_run(run, out)
+    a = read_csv(out)
+    size = csv_module.SMALL_FILE_BYTES
+    try:
+        csv_module.SMALL_FILE_BYTES = 0
+        b = read_csv(out)
+    finally:
+        csv_module.SMALL_FILE_BYTES = size
+    for name in ("t_s", "lat_deg", "lon_deg", "alt_m", "q_body_to_enu_wxyz", "gnss_lat_deg", "gnss_lon_deg", "gnss_alt_m"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None and y is None) or np.array_equal(x, y, equal_nan=True), name
+    assert a.images == b.images
+    assert a.extra.keys() == b.extra.keys()
+    for k in a.extra:
+        assert a.extra[k].dtype == b.extra[k].dtype and np.array_equal(a.extra[k], b.extra[k])
+
+
+@pytest.mark.parametrize("value", ["1_0", "0x10", "abc"])
+def test_numbers_arrow_refuses_are_refused_by_both(tmp_path, value):
+    p = _write(tmp_path, [HEADER, GOOD[0], f"{value},60.17001,24.94,20.0,1,0,0,0"])
+    with pytest.raises(RunFormatError) as err:
+        read_csv(p)
+    assert ":3: field t: not a number" in str(err.value)

@@ -16,6 +16,9 @@ anything else      kept verbatim as text and written back
 Parsing is columnar (pyarrow) so a one-hour 100 Hz run parses in a fraction of a second.
 When it fails, a slower pass finds the exact line and field to name in the error. Lines
 are counted as physical lines; fields containing quoted newlines are not supported.
+Files under ``SMALL_FILE_BYTES`` (a few thousand rows) are read and written by the standard
+library instead, to the same arrays, errors and bytes: importing pyarrow costs about 40 ms of
+CPU, more than the whole parse of such a file.
 """
 
 from __future__ import annotations
@@ -122,6 +125,8 @@ def _locate_failure(path: Path, data: bytes, names: list[str]) -> RunFormatError
                 continue
             v = value.strip()
             try:
+                if "_" in v:  # float() reads 1_000, which Arrow refuses
+                    raise ValueError(v)
                 x = float(v)
             except ValueError:
                 if name in GNSS_COLUMNS and v in NULL_VALUES:
@@ -145,8 +150,78 @@ def _parse(pacsv, pa, source, names: list[str], column_types: dict):
     )
 
 
+# Below this size a file is parsed in Python (``_read_small``): quicker than importing pyarrow.
+SMALL_FILE_BYTES = 1 << 20
+
+
+def _read_small(path: Path, data: bytes, names: list[str]) -> PoseRun:
+    """``read_csv`` of a small file by the standard library: the same arrays and errors as the
+    Arrow path (empty and null-like fields are missing, NaN only in the GNSS columns)."""
+    text = data.decode("utf-8-sig", errors="strict")
+    reader = _stdcsv.reader(_io.StringIO(text, newline=""))
+    next(reader, None)
+    rows, lines = [], []
+    width = len(names)
+    for row in reader:
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue
+        if len(row) != width:
+            raise RunFormatError(path, reader.line_num, None, f"expected {width} fields, found {len(row)}")
+        rows.append(row)
+        lines.append(reader.line_num)
+    if not rows:
+        raise RunFormatError(path, 2, None, "the run is empty (header but no samples)")
+    cols = list(zip(*rows))
+    nulls = set(NULL_VALUES)
+
+    def numeric(name: str, nullable: bool) -> np.ndarray:
+        values = cols[names.index(name)]
+        if "_" not in "".join(values):  # float() reads 1_000, which Arrow refuses
+            try:
+                return np.array([float(v) for v in values])
+            except ValueError:
+                pass
+        out = np.empty(len(values))
+        for i, value in enumerate(values):
+            v = value.strip()
+            if v in nulls:
+                if not nullable:
+                    raise RunFormatError(path, lines[i], name, "value is missing or NaN")
+                out[i] = np.nan
+                continue
+            try:
+                if "_" in v:
+                    raise ValueError(v)
+                out[i] = float(v)
+            except ValueError:
+                raise RunFormatError(path, lines[i], name, f"not a number: {value!r}") from None
+        return out
+
+    def checked(name: str) -> np.ndarray:
+        arr = numeric(name, False)
+        bad = np.isnan(arr)
+        if bad.any():
+            raise RunFormatError(path, lines[int(np.flatnonzero(bad)[0])], name, "value is missing or NaN")
+        return arr
+
+    t = checked("t")
+    lat, lon, alt = (checked(c) for c in ("lat", "lon", "alt"))
+    q = np.column_stack([checked(c) for c in QUAT_COLUMNS]) if "qw" in names else None
+    gnss = tuple(numeric(c, True) for c in GNSS_COLUMNS) if "gnss_lat" in names else None
+    images = list(cols[names.index(IMAGE_COLUMN)]) if IMAGE_COLUMN in names else None
+    known = set(NUMERIC) | {IMAGE_COLUMN}
+    extra = {}
+    for c in names:
+        if c not in known:
+            a = np.empty(len(rows), dtype=object)
+            a[:] = cols[names.index(c)]
+            extra[c] = a
+    return build_run(path, t, lat, lon, alt, q, line_of_row=lambda i: lines[i] if i < len(lines) else i + 2,
+                     gnss=gnss, images=images, extra=extra)
+
+
 def read_csv(path: str | os.PathLike) -> PoseRun:
-    """Read an interchange CSV file into a ``PoseRun``.
+    """Read an interchange CSV file into a ``PoseRun`` (small files: ``_read_small``).
 
     Raises
     ------
@@ -155,15 +230,31 @@ def read_csv(path: str | os.PathLike) -> PoseRun:
         columns, a non-numeric or NaN value, latitude/longitude out of range, timestamps
         not strictly increasing, a zero or non-unit quaternion, an empty run.
     """
-    import pyarrow as pa
-    import pyarrow.csv as pacsv
-
     path = Path(path)
     try:
         head = _read_head(path)
     except OSError as exc:
         raise RunFormatError(path, None, None, f"cannot read file: {exc.strerror or exc}") from None
     names = _header(path, head)
+    if len(head) < SMALL_FILE_BYTES:
+        try:
+            size = path.stat().st_size
+        except OSError as exc:
+            raise RunFormatError(path, None, None, f"cannot read file: {exc.strerror or exc}") from None
+        if size < SMALL_FILE_BYTES:
+            try:
+                data = path.read_bytes()
+            except OSError as exc:
+                raise RunFormatError(path, None, None, f"cannot read file: {exc.strerror or exc}") from None
+            try:
+                return _read_small(path, data, names)
+            except UnicodeDecodeError:
+                pass  # Arrow's reading of such a file decides
+            except _stdcsv.Error:
+                raise _locate_failure(path, data, names) from None
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
     column_types = {c: (pa.float64() if c in NUMERIC else pa.string()) for c in names}
     cache: dict[str, bytes] = {}
 
