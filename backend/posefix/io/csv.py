@@ -27,6 +27,7 @@ import csv as _stdcsv
 import io as _io
 import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -363,10 +364,103 @@ def write_csv(run: PoseRun, path: str | os.PathLike, exact: bool = False) -> Non
     formatted in slices on several threads (Arrow's writer releases the GIL), then written
     in order: the bytes are those of one writer.
     """
+    small = _csv_small(run, exact) if run.n <= SMALL_WRITE_ROWS and "pyarrow" not in sys.modules else None
+    if small is not None:
+        with atomic_write(path, "wb") as fh:
+            fh.write(small)
+        return
     table = run_to_table(run, exact=exact)
     with atomic_write(path, "wb") as fh:
         for chunk in _csv_chunks(table):
             fh.write(chunk)
+
+
+# Runs up to this many rows are written by ``_csv_small`` when pyarrow is not loaded yet:
+# formatting them in Python costs less than importing it.
+SMALL_WRITE_ROWS = 5_000
+
+
+def _arrow_float(x: float) -> str:
+    """A double as Arrow's CSV writer prints it: the shortest round-trip digits, in fixed
+    notation for decimal exponents -6..9, else d.ddde+XX; NaN as an empty field."""
+    if x != x:
+        return ""
+    if x in (math.inf, -math.inf):
+        return "inf" if x > 0 else "-inf"
+    r = repr(x)
+    sign = "-" if r[0] == "-" else ""
+    r = r.lstrip("-")
+    if "e" in r:
+        mant, e = r.split("e")
+        exp = int(e)
+        digits = mant.replace(".", "")
+    else:
+        whole, _, frac = r.partition(".")
+        frac = frac.rstrip("0")
+        if whole != "0":
+            exp = len(whole) - 1
+            digits = (whole + frac)
+        else:
+            stripped = frac.lstrip("0")
+            exp = -(len(frac) - len(stripped)) - 1
+            digits = stripped or "0"
+        digits = digits.rstrip("0") or "0"
+    digits = digits.lstrip("0") or "0"
+    digits = digits.rstrip("0") or "0"
+    if -6 <= exp < 10:
+        if exp < 0:
+            return f"{sign}0.{'0' * (-exp - 1)}{digits}"
+        if len(digits) <= exp + 1:
+            return sign + digits + "0" * (exp + 1 - len(digits))
+        return f"{sign}{digits[:exp + 1]}.{digits[exp + 1:]}"
+    mant = digits[0] + ("." + digits[1:] if len(digits) > 1 else "")
+    return f"{sign}{mant}e{'+' if exp >= 0 else '-'}{abs(exp)}"
+
+
+def _float_strings(a: np.ndarray) -> list[str]:
+    """``_arrow_float`` of every value; the usual magnitudes straight from repr."""
+    mag = np.abs(a)
+    usual = ((mag >= 1e-4) & (mag < 1e10)) | (a == 0)  # repr prints these in fixed notation too
+    out = [v[:-2] if v.endswith(".0") else v for v in map(repr, a.tolist())]
+    for i in np.flatnonzero(~usual).tolist():
+        out[i] = _arrow_float(float(a[i]))
+    return out
+
+
+def _csv_small(run: PoseRun, exact: bool) -> bytes | None:
+    """The bytes Arrow's writer makes of ``run_to_table(run, exact)``, formatted in Python
+    (None for a column kind it does not cover: then Arrow writes)."""
+    cols: dict[str, list[str]] = {"t": _float_strings(np.ascontiguousarray(run.t_s, dtype=float))}
+    qarr = run.q_body_to_enu_wxyz
+    floats = [("lat", run.lat_deg), ("lon", run.lon_deg), ("alt", run.alt_m),
+              ("qw", qarr[:, 0]), ("qx", qarr[:, 1]), ("qy", qarr[:, 2]), ("qz", qarr[:, 3])]
+    if run.has_gnss:
+        floats += list(zip(GNSS_COLUMNS, (run.gnss_lat_deg, run.gnss_lon_deg, run.gnss_alt_m)))
+    for name, a in floats:
+        a = np.ascontiguousarray(a, dtype=float)
+        places = DECIMALS.get("q" if name in QUAT_COLUMNS else name)
+        if places is not None and not exact:
+            a = np.round(a, places) + 0.0
+        cols[name] = _float_strings(a)
+        if np.isnan(a).any():  # from_pandas: NaN is a null, an empty field
+            cols[name] = ["" if v == "nan" else v for v in cols[name]]
+
+    def quoted(values) -> list[str]:
+        # Arrow's "needed" quoting quotes every string (a null is an empty field)
+        return ["" if v is None else '"' + str(v).replace('"', '""') + '"' for v in values]
+
+    if run.images is not None:
+        cols[IMAGE_COLUMN] = quoted(run.images)
+    for k, v in run.extra.items():
+        if k in cols:
+            continue
+        arr = np.asarray(v)
+        if arr.dtype.kind in "fiub":
+            return None
+        cols[k] = ['"' + ("" if x is None else str(x)).replace('"', '""') + '"' for x in arr.tolist()]
+    lines = [",".join(cols)]
+    lines += map(",".join, zip(*cols.values()))
+    return ("\n".join(lines) + "\n").encode()
 
 
 def _csv_chunks(table) -> list:
