@@ -339,6 +339,7 @@ class TestSuggestions:
         assert body["run_id"] == rid and body["revision"] == 0
         fc = client.get(f"/api/v1/runs/{rid}/keyframes", headers=users["admin"]).json()
         assert len(body["items"]) == len(fc["features"]) and body["osm"] == "helsinki.osm.pbf"
+        assert body["matcher"] == "roads"  # a drive on the extract's streets: the road network answers
         assert all(it["sigma_m"] > 0 and it["moved_m"] >= 0 for it in body["items"])
         assert [it["adjustable"] for it in body["items"]] == [f["properties"]["adjustable"] for f in fc["features"]]
         it = max((x for x in body["items"] if x["adjustable"] and 0 < x["moved_m"] < 20), key=lambda x: x["moved_m"])
@@ -349,6 +350,17 @@ class TestSuggestions:
         edits = client.get(f"/api/v1/runs/{rid}/edits", headers=users["admin"]).json()
         rows = edits["items"] if isinstance(edits, dict) else edits
         assert [(e["k"], e["kind"]) for e in rows] == [(it["index"], "suggestion")]
+
+    def test_the_grid_when_asked_is_another_job_with_its_own_answer(self, app, client, users):
+        rid = upload(client, users["client"], drive_csv(100)).json()["id"]
+        roads_id = client.post(f"/api/v1/runs/{rid}/suggestions", headers=users["admin"]).json()["job_id"]
+        roads = wait_job(app, roads_id)["result"]
+        r = client.post(f"/api/v1/runs/{rid}/suggestions", json={"matcher": "grid"}, headers=users["admin"])
+        assert r.status_code == 202 and r.json()["job_id"] != roads_id
+        grid = wait_job(app, r.json()["job_id"])["result"]
+        assert roads["matcher"] == "roads" and grid["matcher"] == "grid" and len(grid["items"]) == len(roads["items"])
+        r = client.post(f"/api/v1/runs/{rid}/suggestions", json={"matcher": "nearest"}, headers=users["admin"])
+        assert r.status_code == 422 and "matcher" in r.text
 
     def test_suggestion_access(self, client, users):
         rid = upload(client, users["client"], drive_csv(100)).json()["id"]

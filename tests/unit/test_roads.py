@@ -85,3 +85,89 @@ def test_bad_inputs_name_the_file(tmp_path, drive) -> None:
         match_on_roads(drive.lon_deg + 1.0, drive.lat_deg, q, osm_extract())
     with pytest.raises(ValueError, match="two keyframes"):
         match_on_roads(drive.lon_deg[:1], drive.lat_deg[:1], q[:1], osm_extract())
+
+
+def test_the_bias_along_a_road_is_corrected_where_the_run_turns(drive) -> None:
+    # 12 m along the first street and 5 m across: a projection alone keeps the 12 m
+    geo = local_georef(float(drive.lon_deg[0]), float(drive.lat_deg[0]))
+    truth = geo.to_xy(np.column_stack([drive.lon_deg, drive.lat_deg]))
+    along = truth[5] - truth[0]
+    along /= np.linalg.norm(along)
+    shift = 12.0 * along + 5.0 * np.array([-along[1], along[0]])
+    ll = geo.to_lonlat(truth + shift)
+    sug = match_on_roads(ll[:, 0], ll[:, 1], drive.q_body_to_enu_wxyz, osm_extract(), t_s=drive.t_s)
+    after = _error_m(sug.lonlat_deg, drive)
+    assert np.median(after) < 1.0, np.median(after)
+    assert sug.matcher == "roads"
+
+
+def test_the_two_solvers_of_the_bias_agree() -> None:
+    from posefix.roads import match as m
+    from posefix.roads.network import road_network
+
+    sim = simulate(duration_s=120.0, rate_hz=1.0, osm_path=str(osm_extract()), seed=9, edit_every_s=0, regime="canyon")
+    ll = np.column_stack([sim.run.lon_deg, sim.run.lat_deg])
+    net = road_network(osm_extract(), (ll[:, 0].min() - 0.002, ll[:, 1].min() - 0.001, ll[:, 0].max() + 0.002,
+                                        ll[:, 1].max() + 0.001))
+    p = net.georef.to_xy(ll)
+    near = m.candidates(net, p)
+    state, matched, on_road, _, _ = m._viterbi_pass(near, p, np.zeros(len(p)), False)
+    seg = np.where(on_road, near[3][np.arange(len(p)), np.minimum(state, m.K - 1)], -1)
+    dt = np.full(len(p) - 1, 1.0)
+    args = (net, p, np.zeros_like(p), matched, seg, dt, 6.0, m.TAU_S, m.RATE_M_PER_SQRT_S, True)
+    banded, _ = m._smooth_bias(*args, covariance=False)
+    rts, cov = m._smooth_bias(*args, covariance=True)
+    assert np.abs(banded - rts).max() < 1e-6
+    assert np.all(cov[:, 0] > 0) and np.all(cov[:, 0] * cov[:, 2] > cov[:, 1] ** 2)
+
+
+def test_a_run_away_from_the_roads_falls_back_to_the_grid(drive) -> None:
+    from posefix.roads import FewRoadsNear, suggest_vehicle_run
+
+    lon0, lat0 = _far_from_roads(drive, min_m=60.0)
+    geo = local_georef(lon0, lat0)
+    a = np.linspace(0.0, 2 * np.pi, 30)
+    ll = geo.to_lonlat(np.column_stack([8.0 * np.cos(a), 8.0 * np.sin(a)]))
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (a.size, 1))
+    with pytest.raises(FewRoadsNear):
+        match_on_roads(ll[:, 0], ll[:, 1], q, osm_extract(), min_near_share=0.5)
+    sug = suggest_vehicle_run(ll[:, 0], ll[:, 1], q, osm_extract())
+    assert sug.matcher == "grid" and sug.off_road.all()
+    assert suggest_vehicle_run(drive.lon_deg, drive.lat_deg, drive.q_body_to_enu_wxyz, osm_extract()).matcher == "roads"
+    with pytest.raises(ValueError, match="field matcher"):
+        suggest_vehicle_run(ll[:, 0], ll[:, 1], q, osm_extract(), matcher="nearest")
+
+
+def test_keyframe_times_must_increase(drive) -> None:
+    t = drive.t_s.copy()
+    t[7] = t[6]
+    with pytest.raises(ValueError, match="keyframe 7: field t_s"):
+        match_on_roads(drive.lon_deg, drive.lat_deg, drive.q_body_to_enu_wxyz, osm_extract(), t_s=t)
+
+
+def test_cli_suggest_writes_one_line_per_keyframe(tmp_path) -> None:
+    from click.testing import CliRunner
+
+    from posefix.cli import build_app
+    from posefix.io import write_run
+
+    sim = simulate(duration_s=60.0, rate_hz=10.0, osm_path=str(osm_extract()), seed=3, edit_every_s=0, regime="canyon")
+    write_run(sim.run, tmp_path / "run.csv")
+    out = CliRunner().invoke(build_app(), ["mapmatch", "suggest", str(tmp_path / "run.csv"), "--osm", str(osm_extract()),
+                                           "-o", str(tmp_path / "s.csv")])
+    assert out.exit_code == 0, out.output
+    assert "61 keyframes on the roads matcher" in out.output
+    rows = np.genfromtxt(tmp_path / "s.csv", delimiter=",", names=True)
+    assert rows.size == 61 and np.array_equal(rows["row"], np.arange(0, 601, 10))
+    before = _error_m(np.column_stack([sim.run.lon_deg[::10], sim.run.lat_deg[::10]]), _rows(sim.truth, slice(None, None, 10)))
+    after = _error_m(np.column_stack([rows["lon"], rows["lat"]]), _rows(sim.truth, slice(None, None, 10)))
+    assert np.mean(after) < np.mean(before), (np.mean(before), np.mean(after))
+    bad = CliRunner().invoke(build_app(), ["mapmatch", "suggest", str(tmp_path / "run.csv"), "--osm",
+                                           str(tmp_path / "none.pbf"), "-o", str(tmp_path / "t.csv")])
+    assert bad.exit_code == 1 and "none.pbf" in bad.output and not (tmp_path / "t.csv").exists()
+
+
+def _rows(run, sl):
+    import dataclasses
+
+    return dataclasses.replace(run, lon_deg=run.lon_deg[sl], lat_deg=run.lat_deg[sl])

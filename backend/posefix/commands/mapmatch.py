@@ -1,4 +1,5 @@
-"""``posefix mapmatch``: build, fingerprints, train, track, evaluate (CRF map matching).
+"""``posefix mapmatch``: build, fingerprints, train, track, evaluate (CRF map matching), and
+suggest (a vehicle run's keyframes on the OpenStreetMap roads).
 
 Heavy modules are imported inside the commands so ``posefix --help`` stays quick. Bad
 input prints one line ``error: ...`` on stderr and exits with status 1; outputs are
@@ -24,7 +25,7 @@ PATH = click.Path(path_type=Path)
 
 @app.group("mapmatch", no_args_is_help=True)
 def mm() -> None:
-    """Map matching with a conditional random field (MapCraft): indoor walks on floor plans."""
+    """Map matching: indoor walks on floor plans (a CRF, MapCraft); vehicle runs on OpenStreetMap roads (suggest)."""
 
 
 @contextmanager
@@ -220,3 +221,44 @@ def evaluate(walk: Path, track_csv: Path, skip_first: bool) -> None:
         for name, arr in (("waypoints", e.err_wp_m), ("steps", e.err_steps_m)):
             s = summarise([arr])
             click.echo(f"{name}: n={s['n']} mean={s['mean_m']:.2f} m median={s['median_m']:.2f} m p95={s['p95_m']:.2f} m")
+
+
+@mm.command("suggest", context_settings=CONTEXT)
+@click.argument("run_path", metavar="RUN", type=PATH)
+@click.option("--osm", type=PATH, required=True, help="OpenStreetMap extract (.osm.pbf), e.g. data/osm/helsinki.osm.pbf.")
+@click.option("--output", "-o", type=PATH, required=True,
+              help="SUGGESTIONS.csv: row, t_s, lon, lat (suggested), moved_m, off_road, sigma_m; one line per keyframe.")
+@click.option("--every-s", type=click.FloatRange(min=0.0, min_open=True), default=1.0,
+              help="Keyframe spacing, seconds (the engine's default keyframes).")
+@click.option("--matcher", type=click.Choice(["roads", "grid"]), default="roads",
+              help="roads: the road network (the grid takes over when most keyframes have no road within 50 m); "
+                   "grid: the drivable-area grid.")
+@click.option("--cell-m", type=click.FloatRange(min=0.5, max=10.0), default=2.0, help="Grid cell size, metres (--matcher grid).")
+@click.option("--format", "input_format", help="Input format (default: from the extension).")
+def suggest(run_path: Path, osm: Path, output: Path, every_s: float, matcher: str, cell_m: float,
+            input_format: Optional[str]) -> None:
+    """Suggest where a vehicle run's keyframes lie on the roads (the editor's suggestions).
+
+    RUN is a pose run (CSV, Parquet, GPX, ...), typically one `posefix correct` wrote.
+    """
+    with user_errors():
+        import numpy as np
+
+        from posefix.core.keyframes import select_keyframes
+        from posefix.io import read_run
+        from posefix.roads import suggest_vehicle_run
+
+        run = read_run(run_path, fmt=input_format)
+        idx = select_keyframes(run.t_s, np.zeros((run.n, 3)), every_s=every_s)
+        t0 = time.perf_counter()
+        sug = suggest_vehicle_run(run.lon_deg, run.lat_deg, run.q_body_to_enu_wxyz, osm, t_s=run.t_s, matcher=matcher,
+                                  cell_m=cell_m, index=idx)
+        elapsed = time.perf_counter() - t0
+        with _atomic(output, ".csv") as tmp:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write("row,t_s,lon,lat,moved_m,off_road,sigma_m\n")
+                for j, i in enumerate(sug.index):
+                    fh.write(f"{i},{run.t_s[i]:.3f},{sug.lonlat_deg[j, 0]:.8f},{sug.lonlat_deg[j, 1]:.8f},"
+                             f"{sug.moved_m[j]:.3f},{int(sug.off_road[j])},{sug.sigma_m[j]:.3f}\n")
+        click.echo(f"suggest: {idx.size} keyframes on the {sug.matcher} matcher in {elapsed:.2f} s; median move "
+                   f"{float(np.median(sug.moved_m)):.1f} m, {int(sug.off_road.sum())} off the road -> {output}")

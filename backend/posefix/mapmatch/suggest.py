@@ -121,7 +121,9 @@ def drivable_cache_info(clear: bool = False) -> dict[str, int]:
 class Suggestions:
     """Per keyframe (k,): ``index`` rows into the run, ``lonlat_deg`` (k, 2) matched,
     ``moved_m`` distance from the reported position, ``off_road`` reported position off the
-    drivable area, ``sigma_m`` 1σ major axis of the online column at that keyframe (m). ``n_vertices`` of the graph used."""
+    drivable area, ``sigma_m`` 1σ major axis of the match at that keyframe (m). ``n_vertices``
+    of the graph used (road segments for the road matcher); ``matcher`` "grid" (this module)
+    or "roads" (:mod:`posefix.roads`)."""
 
     index: np.ndarray
     lonlat_deg: np.ndarray
@@ -129,6 +131,7 @@ class Suggestions:
     off_road: np.ndarray
     sigma_m: np.ndarray
     n_vertices: int
+    matcher: str = "grid"
 
 
 def heading_from_quaternion_wxyz(q: np.ndarray) -> np.ndarray:

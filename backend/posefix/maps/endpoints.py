@@ -217,10 +217,11 @@ def delete_session(session_id: str, principal: AnyUser) -> Response:
                         "(the job's result, at GET /jobs/{job_id}): per keyframe the suggested lon/lat, moved_m, off_road, sigma_m"}})
 def run_suggestions(run_id: int, request: Request, principal: EditorUser, session: SessionDep, settings: SettingsDep,
                     body: SuggestionRequest | None = None) -> dict[str, Any]:
-    """Queue map-matching suggestions for a run's keyframes against the OpenStreetMap drivable
-    area (a job; its result is a ``SuggestionsOut``: per keyframe the matched lon/lat, how far
+    """Queue map-matching suggestions for a run's keyframes against the OpenStreetMap road
+    network, or its drivable-area grid (a job; its result is a ``SuggestionsOut``: per keyframe the matched lon/lat, how far
     it would move, whether it lies off the road, and the match's 1σ). Accepting one is a move
     of kind ``suggestion`` in ``POST /runs/{id}/edits``."""
     run = get_visible_run(session, principal, settings, run_id)
     req = body or SuggestionRequest()
-    return suggestions.request_suggestions(session, settings, principal, run, req.revision, req.cell_m, wake=_wake(request))
+    return suggestions.request_suggestions(session, settings, principal, run, req.revision, req.cell_m, wake=_wake(request),
+                                           matcher=req.matcher)

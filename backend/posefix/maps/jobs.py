@@ -53,7 +53,8 @@ def run_suggestions(ctx: JobContext, payload: dict[str, Any]) -> dict[str, Any]:
         if run is None:
             raise PermanentJobError(f"run {payload.get('run_id')} is gone")
         try:
-            return suggest(s, ctx.settings, run, int(payload["revision"]), float(payload["cell_m"]))
+            return suggest(s, ctx.settings, run, int(payload["revision"]), float(payload["cell_m"]),
+                           str(payload.get("matcher", "grid")))  # a payload without a matcher was queued for the grid
         except AppError as exc:
             # No extract, no road near the run, revision gone: retrying will not help.
             raise PermanentJobError(exc.detail) from exc

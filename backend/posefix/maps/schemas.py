@@ -111,7 +111,10 @@ class StepsOut(BaseModel):
 
 class SuggestionRequest(BaseModel):
     revision: int | None = Field(default=None, ge=0, le=10**9, description="default: the latest ready revision")
-    cell_m: float = Field(default=2.0, ge=0.5, le=10.0, description="drivable-area graph cell size, metres")
+    cell_m: float = Field(default=2.0, ge=0.5, le=10.0, description="drivable-area grid cell size, metres (matcher grid)")
+    matcher: Literal["roads", "grid"] = Field(
+        default="roads", description="roads: candidate projections onto the road network (the default; the grid takes "
+                                     "over when most keyframes have no road within 50 m); grid: the drivable-area grid")
 
 
 class KeyframeSuggestion(BaseModel):
@@ -135,7 +138,8 @@ class SuggestionsOut(BaseModel):
     run_id: int
     revision: int
     osm: str = Field(description="the OpenStreetMap extract matched against (file name)")
-    n_vertices: int
+    matcher: str = Field(description="the matcher that answered: roads or grid")
+    n_vertices: int = Field(description="road segments (roads) or grid vertices (grid) around the run")
     time_ms: float
     off_road: int = Field(description="keyframes off the drivable area")
     items: list[KeyframeSuggestion]

@@ -1,11 +1,12 @@
-"""Map-matching suggestions for a pose run's keyframes (OpenStreetMap drivable area).
+"""Map-matching suggestions for a pose run's keyframes (OpenStreetMap roads).
 
-The keyframes of a ready revision (their corrected positions, and the heading stored with
-them) are matched by :func:`posefix.mapmatch.api.suggest_for_run` in a worker job
-(``run.suggestions``). Reading the extract and building the drivable raster and graph is
-most of a call's cost, so the worker keeps them in memory
-(:func:`posefix.mapmatch.suggest.drivable_area`, keyed by the extract's hash and the snapped
-box), and a finished job for the same run, revision and cell size is reused.
+The keyframes of a ready revision (their corrected positions, the heading stored with them
+and their times) are matched in a worker job (``run.suggestions``) by
+:func:`posefix.roads.suggest_vehicle_run`: on the road network by default (``matcher``
+"roads"), on the drivable-area grid when asked ("grid") or when most keyframes have no road
+within reach. Reading the extract is most of a first call's cost, so the worker keeps the
+road network and the grid's raster in memory (keyed by the extract's hash and the snapped
+box), and a finished job for the same run, revision, matcher and cell size is reused.
 An accepted suggestion is submitted through the normal edits path as a move of kind
 ``suggestion``; see docs/maps-api.md for how it is weighted.
 """
@@ -52,9 +53,11 @@ def quaternion_from_heading(heading_deg_cw_from_north: np.ndarray) -> np.ndarray
     return q
 
 
-def suggest(session: Session, settings: Settings, run: Run, revision: int | None, cell_m: float) -> dict[str, Any]:
+def suggest(session: Session, settings: Settings, run: Run, revision: int | None, cell_m: float,
+            matcher: str = "roads") -> dict[str, Any]:
     from posefix.edits.service import ready
-    from posefix.mapmatch.api import suggest_for_run
+    from posefix.roads import suggest_vehicle_run
+    from posefix.runs import repository
 
     t0 = time.perf_counter()
     number = run.revision if revision is None else revision
@@ -64,8 +67,10 @@ def suggest(session: Session, settings: Settings, run: Run, revision: int | None
     if k < 2:
         raise Unprocessable(f"run {run.id} has {k} keyframe(s); matching needs two or more", code="too_few_keyframes")
     osm = osm_path(settings)
+    t_s = np.array([row[2] for row in repository.keyframe_columns(session, run.id)], dtype=float)
     try:
-        sug = suggest_for_run(kf.lon_deg, kf.lat_deg, quaternion_from_heading(kf.heading_deg), osm, cell_m=cell_m)
+        sug = suggest_vehicle_run(kf.lon_deg, kf.lat_deg, quaternion_from_heading(kf.heading_deg), osm,
+                                  t_s=t_s if t_s.size == k else None, matcher=matcher, cell_m=cell_m)
     except ValueError as exc:
         # e.g. no drivable way near the run: the extract does not cover it.
         raise Unprocessable(f"run {run.id}: {exc}", code="no_match", extra={"file": osm.name}) from None
@@ -78,20 +83,20 @@ def suggest(session: Session, settings: Settings, run: Run, revision: int | None
         for i in range(k)
     ]
     return {
-        "run_id": run.id, "revision": number, "osm": osm.name, "n_vertices": int(sug.n_vertices),
+        "run_id": run.id, "revision": number, "osm": osm.name, "matcher": sug.matcher, "n_vertices": int(sug.n_vertices),
         "time_ms": round((time.perf_counter() - t0) * 1000, 1), "off_road": int(np.sum(sug.off_road)), "items": items,
     }
 
 
 def request_suggestions(session: Session, settings: Settings, principal: Principal, run: Run, revision: int | None,
-                        cell_m: float, wake: Any = None) -> dict[str, Any]:
+                        cell_m: float, wake: Any = None, matcher: str = "roads") -> dict[str, Any]:
     """Queue the matching of a ready revision (or reuse a finished or running job for it)."""
     from posefix.edits.service import ready
 
     number = run.revision if revision is None else revision
     ready(session, run, number)
     osm_path(settings)  # 404 now rather than a dead job
-    payload = {"run_id": run.id, "revision": number, "cell_m": cell_m}
+    payload = {"run_id": run.id, "revision": number, "cell_m": cell_m, "matcher": matcher}
     for job in jobs.live_for_run(session, SUGGEST_JOB, run.id):
         if job.payload == payload:
             return {"job_id": job.id, "status": job.status, "run_id": run.id, "revision": number}

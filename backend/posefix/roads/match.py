@@ -2,7 +2,7 @@
 segments (as FMM and Valhalla do) and a linear-chain CRF decoded by Viterbi.
 
 States at keyframe t: up to ``K`` candidates ``c_tk``, the projections of the reported
-position ``p_t`` onto the nearest road segments within ``CELL_M``, plus one off-road state
+position ``p_t`` onto the nearest road segments within ``RADIUS_M``, plus one off-road state
 that stays at ``p_t``. The energy of a path (the negative log of its unnormalised
 probability) is
 
@@ -21,15 +21,32 @@ bias costs nothing and a jump to a parallel street costs its offset.
 ``sigma_d`` is estimated per run: the robust spread (1.4826 x median) of the distances to
 the nearest road, within [``SIGMA_D_MIN_M``, ``SIGMA_D_MAX_M``]; ``sigma_h`` = 20 degrees
 (a car's heading follows its lane; junctions and curves between OSM nodes);
-``sigma_s`` = 1.5 m (half a lane: a lane change between keyframes). Each keyframe's
-``sigma_m`` is the spread of its max-marginal posterior over the states (min-sum forward
-+ backward) plus the lateral spread of a carriageway (half width / sqrt 3).
+``sigma_s`` = 1.5 m (half a lane: a lane change between keyframes).
 
-Two passes: the projections only move a keyframe across its road, so a GNSS bias along a
-straight road would stay. The first pass's residuals (matched - reported), median-filtered
-over ``BIAS_WINDOW`` keyframes, estimate the run's slowly varying bias, whose along-road
-part shows at every turn; the second pass matches the reported positions moved by it
-(``p_t`` above becomes ``p_t + bias_t``; the off-road state stays at the reported position).
+The bias. A projection only moves a keyframe across its road, so a GNSS bias along a
+straight road would stay, and on a straight road that is most of the error. The run's
+error is a slowly varying bias ``b_t`` (the shape is right, the position wrong), so after
+each decoding the bias is estimated from the matched roads, every road constraining it
+across that road only, and the turns constraining the rest:
+
+    min_b  sum_t w_t (n_t . (p_t + b_t - c_t))^2                  (road t's line, unit normal n_t)
+         + sum_t |b_t+1 - phi_t b_t|^2 / q_t + |b_0|^2 / sigma_b^2
+
+    q_t = rate^2 dt_t,  phi_t = exp(-dt_t / tau)          (a random walk slowly returning to 0)
+    w_t = 1 / (h_t^2 / 3 + SIGMA_LINE_M^2)                (the carriageway's spread across, half width h_t)
+
+with Cauchy weights ``w_t / (1 + (r_t / (3 sqrt(1/w_t)))^2)`` on the residuals ``r_t`` of
+the previous estimate after the first pass (a wrong edge at a junction pulls little), and
+no road term where the decoding chose the off-road state. ``rate`` = 0.5 m/sqrt(s) (a GNSS
+fix's multipath error wanders by metres over tens of seconds), ``tau`` = 600 s, ``sigma_b``
+per run as ``sigma_d`` (clipped to [``SIGMA_B_MIN_M``, ``SIGMA_B_MAX_M``]). The system is
+block tridiagonal: a banded Cholesky solve, and on the last pass a Kalman filter and
+Rauch-Tung-Striebel smoother, which give the same mean and each ``b_t``'s covariance
+``P_t``. ``PASSES`` rounds: decode at ``p + b``, estimate ``b``. The suggestion is
+``p_t + b_t``: the run's own shape moved by a smooth bias, not snapped to the centreline,
+so a lane offset, a lane change or a corner cut stays as driven. Its ``sigma_m`` is
+``sqrt(lambda_max(P_t) + s_t)``, ``s_t`` the mean squared distance of the decoding's
+max-marginal posterior (min-sum forward + backward) from the chosen state.
 
 ``off_road`` flags a reported position outside the carriageway of its nearest road (its
 distance above that road's half width), the drivable-area version's meaning.
@@ -43,9 +60,9 @@ import numpy as np
 
 from posefix.mapmatch.osm import local_georef
 from posefix.mapmatch.suggest import NoWaysError, Suggestions, heading_from_quaternion_wxyz
-from posefix.roads.network import CELL_M, RoadNetwork, road_network
+from posefix.roads.network import RADIUS_M, RoadNetwork, road_network
 
-__all__ = ["match_on_roads", "match_xy"]
+__all__ = ["FewRoadsNear", "match_on_roads", "match_xy"]
 
 K = 8
 SIGMA_D_MIN_M, SIGMA_D_MAX_M = 2.0, 20.0
@@ -54,38 +71,45 @@ SIGMA_S_M = 1.5
 OFF_ROAD_Z = 3.0
 OFF_ROAD_COST = 50.0  # 10 sigma_d: only where no road is within the search radius, in practice
 MOVING_M = 1.0
-BIAS_PASSES = 1
-BIAS_WINDOW = 61  # keyframes (a minute at one a second): slower than a road's turns, faster than GNSS drift
+PASSES = 3
+TAU_S = 600.0
+RATE_M_PER_SQRT_S = 0.5
+SIGMA_B_MIN_M, SIGMA_B_MAX_M = 1.0, 30.0
+SIGMA_LINE_M = 0.5
+ROBUST_C = 3.0
 
 
 def candidates(net: RoadNetwork, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per keyframe (n, K): candidate points (n, K, 2), distances, segment headings, segment ids (-1: none)."""
     n = len(p)
     row, seg = net.segments_near(p)
-    a, ab = net.a_xy[seg], net.b_xy[seg] - net.a_xy[seg]
-    t = np.clip(np.einsum("ij,ij->i", p[row] - a, ab) / np.einsum("ij,ij->i", ab, ab), 0.0, 1.0)
-    c = a + t[:, None] * ab
-    d = np.linalg.norm(p[row] - c, axis=1)
-    keep = d <= CELL_M
-    row, seg, c, d, ab = row[keep], seg[keep], c[keep], d[keep], ab[keep]
-    # nearest first per keyframe; a segment met in two cells is the same (row, d, seg): adjacent
-    order = np.lexsort((seg, d, row))
-    row, seg, c, d, ab = row[order], seg[order], c[order], d[order], ab[order]
+    px, py = p[:, 0].take(row), p[:, 1].take(row)
+    ax, ay, dx, dy = net.ax.take(seg), net.ay.take(seg), net.dx.take(seg), net.dy.take(seg)
+    t = np.clip(((px - ax) * dx + (py - ay) * dy) * net.inv_len2.take(seg), 0.0, 1.0)
+    cx, cy = ax + t * dx, ay + t * dy
+    d = np.hypot(px - cx, py - cy)
+    keep = np.flatnonzero(d <= RADIUS_M)
+    # nearest first per keyframe (one sort key: d <= RADIUS_M < 2^16); a segment met in two
+    # cells is the same (row, d, seg), adjacent or one apart (a tie at a shared node between)
+    order = keep[np.argsort(row.take(keep) * 65536.0 + d.take(keep), kind="stable")]
+    row, seg = row.take(order), seg.take(order)
     dup = np.zeros(len(row), dtype=bool)
     dup[1:] = (row[1:] == row[:-1]) & (seg[1:] == seg[:-1])
-    row, seg, c, d, ab = row[~dup], seg[~dup], c[~dup], d[~dup], ab[~dup]
+    dup[2:] |= (row[2:] == row[:-2]) & (seg[2:] == seg[:-2])
+    order, row, seg = order[~dup], row[~dup], seg[~dup]
     first = np.searchsorted(row, row, side="left")
     rank = np.arange(len(row)) - first
     keep = rank < K
-    row, rank = row[keep], rank[keep]
+    row, rank, order, seg = row[keep], rank[keep], order[keep], seg[keep]
     cand = np.zeros((n, K, 2))
     dist = np.full((n, K), np.inf)
     head = np.zeros((n, K))
     ids = np.full((n, K), -1, dtype=np.int64)
-    cand[row, rank] = c[keep]
-    dist[row, rank] = d[keep]
-    head[row, rank] = np.arctan2(ab[keep, 1], ab[keep, 0])
-    ids[row, rank] = seg[keep]
+    cand[row, rank, 0] = cx.take(order)
+    cand[row, rank, 1] = cy.take(order)
+    dist[row, rank] = d.take(order)
+    head[row, rank] = np.arctan2(net.dy.take(seg), net.dx.take(seg))
+    ids[row, rank] = seg
     return cand, dist, head, ids
 
 
@@ -114,38 +138,128 @@ def viterbi(unary: np.ndarray, pos: np.ndarray, step: np.ndarray, sigma_s: float
     return state, fwd + bwd
 
 
-def match_xy(net: RoadNetwork, p: np.ndarray, heading: np.ndarray, window: int = BIAS_WINDOW):
+def match_xy(net: RoadNetwork, p: np.ndarray, heading: np.ndarray, dt_s: np.ndarray | float = 1.0,
+             passes: int = PASSES, rate: float = RATE_M_PER_SQRT_S, tau_s: float = TAU_S, min_near_share: float = 0.0):
     """Match points ``p`` (n, 2) in ``net``'s frame with body headings (n,) rad CCW from east.
 
-    Two passes: the second matches the positions moved by the first's residuals, median-
-    filtered over ``window`` keyframes (the run's slowly varying bias; a turn shows the
-    along-road part a straight road cannot). Returns (matched (n, 2), off_road (n,),
-    sigma_m (n,), sigma_d).
+    ``dt_s``: time between consecutive keyframes (scalar or (n-1,)). Returns (matched (n, 2),
+    off_road (n,), sigma_m (n,), sigma_d); see the module docstring.
     """
-    near = candidates(net, p)
-    passes = BIAS_PASSES if window > 1 else 0
-    matched, on_road, sigma, sigma_d = _match_once(near, p, heading, net.half_width_m, marginals=passes == 0)
-    for _ in range(passes):
-        if on_road.sum() < 2:
-            break
-        from scipy.ndimage import median_filter
+    n = len(p)
+    dt = np.broadcast_to(np.asarray(dt_s, dtype=float), (n - 1,))
+    near0 = candidates(net, p)
+    _, dist0, _, ids0 = near0
+    has0 = np.isfinite(dist0[:, 0])
+    if has0.mean() < min_near_share:
+        raise FewRoadsNear(f"{int(has0.sum())} of {n} keyframes have a road within {RADIUS_M:.0f} m")
+    # the bias's spread, per run: the reported positions' spread across their roads
+    sigma_b = float(np.clip(1.4826 * np.median(dist0[has0, 0]), SIGMA_B_MIN_M, SIGMA_B_MAX_M)) if has0.any() else SIGMA_B_MAX_M
+    bias = np.zeros_like(p)
+    for k in range(passes):
+        near = near0 if k == 0 else candidates(net, p + bias)
+        last = k == passes - 1
+        state, matched, on_road, spread, sigma_d = _viterbi_pass(near, p + bias, heading, last)
+        cand, dist, head, ids = near
+        seg = np.where(on_road, ids[np.arange(n), np.minimum(state, K - 1)], -1)
+        bias, cov = _smooth_bias(net, p, bias, matched, seg, dt, sigma_b, tau_s, rate, robust=k > 0, covariance=last)
+    out = p + bias
+    half = net.half_width_m[np.where(has0, ids0[:, 0], 0)]
+    off_road = ~has0 | (dist0[:, 0] > half)
+    # 1 sigma major axis: the bias's posterior and the Viterbi's doubt between candidates
+    tr, det = cov[:, 0] + cov[:, 2], cov[:, 0] * cov[:, 2] - cov[:, 1] ** 2
+    major = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
+    sigma = np.sqrt(major + spread)
+    return out, off_road, sigma, sigma_d
 
-        r = (matched - p)[on_road]
-        bias = np.empty_like(p)
-        for k in range(2):
-            smooth = median_filter(r[:, k], size=min(window, len(r)), mode="nearest")
-            bias[:, k] = np.interp(np.arange(len(p)), np.flatnonzero(on_road), smooth)
-        matched, on_road, sigma, sigma_d = _match_once(candidates(net, p + bias), p, heading, net.half_width_m)
-    _, dist, _, ids = near
-    has = np.isfinite(dist[:, 0])
-    half = net.half_width_m[np.where(has, ids[:, 0], 0)]
-    off_road = ~has | (dist[:, 0] > half)
-    return matched, off_road, sigma, sigma_d
+
+def _smooth_bias(net: RoadNetwork, p, bias, matched, seg, dt, sigma_b, tau, rate, robust: bool, covariance: bool):
+    """The smooth bias b_t (n, 2) minimising the module docstring's least squares."""
+    n = len(p)
+    on = seg >= 0
+    s = np.maximum(seg, 0)
+    ab = net.b_xy[s] - net.a_xy[s]
+    nrm = np.column_stack([-ab[:, 1], ab[:, 0]]) / np.linalg.norm(ab, axis=1, keepdims=True)
+    z = np.einsum("ij,ij->i", nrm, matched - p)  # n . (c - p): the bias across the road
+    var = net.half_width_m[s] ** 2 / 3.0 + SIGMA_LINE_M**2
+    if robust:
+        r = np.einsum("ij,ij->i", nrm, p + bias - matched)
+        var = var * (1.0 + (r / (ROBUST_C * np.sqrt(var))) ** 2)  # Cauchy weights
+    w = np.where(on, 1.0 / var, 0.0)
+    phi = np.exp(-dt / tau)
+    q = rate**2 * dt
+    if covariance:
+        return _rts(z, nrm, np.where(on, var, np.inf), phi, q, sigma_b)
+    from scipy.linalg import solveh_banded
+
+    # information matrix, unknowns interleaved (x0, y0, x1, y1, ...), upper band form
+    dx = np.zeros(n)
+    dx[0] += 1.0 / sigma_b**2
+    dx[1:] += 1.0 / q
+    dx[:-1] += phi**2 / q
+    dy = dx + w * nrm[:, 1] ** 2
+    dx = dx + w * nrm[:, 0] ** 2
+    band = np.zeros((3, 2 * n))
+    band[2, 0::2], band[2, 1::2] = dx, dy
+    band[1, 1::2] = w * nrm[:, 0] * nrm[:, 1]
+    band[0, 2::2] = band[0, 3::2] = -phi / q
+    rhs = np.empty(2 * n)
+    rhs[0::2], rhs[1::2] = w * z * nrm[:, 0], w * z * nrm[:, 1]
+    b = solveh_banded(band, rhs, lower=False, check_finite=False)
+    return b.reshape(n, 2), None
 
 
-def _match_once(near, p_reported: np.ndarray, heading: np.ndarray, half_width_m: np.ndarray, marginals: bool = True):
-    """One Viterbi pass over the candidates ``near``; the off-road state stays at ``p_reported``."""
-    p = p_reported
+def _rts(z, nrm, var, phi, q, sigma_b):
+    """The same estimate by a Kalman filter and Rauch-Tung-Striebel smoother (scalar
+    arithmetic: 2 x 2 blocks), which also gives each b_t's marginal covariance (n, 3) xx, xy, yy."""
+    n = len(z)
+    zl, nxl, nyl, rl = z.tolist(), nrm[:, 0].tolist(), nrm[:, 1].tolist(), var.tolist()
+    phl, ql = np.broadcast_to(phi, (n - 1,)).tolist(), np.broadcast_to(q, (n - 1,)).tolist()
+    mp, pp, mf, pf = [None] * n, [None] * n, [None] * n, [None] * n
+    mx = my = 0.0
+    a = c = sigma_b * sigma_b
+    b = 0.0
+    for t in range(n):
+        if t:
+            f, qq = phl[t - 1], ql[t - 1]
+            mx, my = f * mx, f * my
+            a, b, c = f * f * a + qq, f * f * b, f * f * c + qq
+        mp[t], pp[t] = (mx, my), (a, b, c)
+        rt = rl[t]
+        if rt != np.inf:
+            hx, hy = nxl[t], nyl[t]
+            px, py = a * hx + b * hy, b * hx + c * hy
+            s = hx * px + hy * py + rt
+            g = (zl[t] - hx * mx - hy * my) / s
+            mx, my = mx + px * g, my + py * g
+            a, b, c = a - px * px / s, b - px * py / s, c - py * py / s
+        mf[t], pf[t] = (mx, my), (a, b, c)
+    mean = np.empty((n, 2))
+    cov = np.empty((n, 3))
+    sx, sy, sa, sb, sc = mx, my, a, b, c
+    mean[-1], cov[-1] = (sx, sy), (sa, sb, sc)
+    for t in range(n - 2, -1, -1):
+        f = phl[t]
+        fa, fb, fc = pf[t]
+        pa, pb, pc = pp[t + 1]
+        det = pa * pc - pb * pb
+        ia, ib, ic = pc / det, -pb / det, pa / det
+        ga, gb = f * (fa * ia + fb * ib), f * (fa * ib + fb * ic)  # G = phi P_f P_p^-1
+        gc, gd = f * (fb * ia + fc * ib), f * (fb * ib + fc * ic)
+        ex, ey = sx - mp[t + 1][0], sy - mp[t + 1][1]
+        fx, fy = mf[t]
+        sx, sy = fx + ga * ex + gb * ey, fy + gc * ex + gd * ey
+        da, db, dc = sa - pa, sb - pb, sc - pc
+        ua, ub = ga * da + gb * db, ga * db + gb * dc
+        va, vb = gc * da + gd * db, gc * db + gd * dc
+        sa, sb, sc = fa + ua * ga + ub * gb, fb + ua * gc + ub * gd, fc + va * gc + vb * gd
+        mean[t], cov[t] = (sx, sy), (sa, sb, sc)
+    return mean, cov
+
+
+def _viterbi_pass(near, p, heading: np.ndarray, marginals: bool):
+    """One Viterbi pass over the candidates ``near`` of ``p``; the off-road state stays at ``p``.
+    Returns (state, matched, on_road, spread (the posterior's mean squared distance from
+    the match), sigma_d)."""
     cand, dist, head, ids = near
     has = np.isfinite(dist[:, 0])
     nearest = dist[has, 0]
@@ -160,27 +274,34 @@ def _match_once(near, p_reported: np.ndarray, heading: np.ndarray, half_width_m:
     unary += np.where(moving[:, None], delta**2 / (2 * SIGMA_H_RAD**2), 0.0)
     off = np.where(has, OFF_ROAD_COST, 0.0)  # the off-road state: where no road is near, or beyond reason
     unary = np.concatenate([unary, off[:, None]], axis=1)
-    pos = np.concatenate([cand, p_reported[:, None, :]], axis=1)
-    pos = np.where(np.isfinite(unary)[..., None], pos, p_reported[:, None, :])  # empty slots: unused, finite
+    pos = np.concatenate([cand, p[:, None, :]], axis=1)
+    pos = np.where(np.isfinite(unary)[..., None], pos, p[:, None, :])  # empty slots: unused, finite
     state, marg = viterbi(unary, pos, step, SIGMA_S_M, marginals)
     rows = np.arange(len(p))
     matched = pos[rows, state]
-    w = np.exp(-(marg - marg.min(axis=1, keepdims=True)))
-    w /= w.sum(axis=1, keepdims=True)
-    spread = np.einsum("ts,ts->t", w, np.sum((pos - matched[:, None, :]) ** 2, axis=2))
-    half = half_width_m[np.maximum(ids[rows, np.minimum(state, K - 1)], 0)]
-    on_road = state < K
-    sigma = np.sqrt(spread + np.where(on_road, half**2 / 3.0, sigma_d**2))
-    return matched, on_road, sigma, sigma_d
+    spread = np.zeros(len(p))
+    if marginals:
+        w = np.exp(-(marg - marg.min(axis=1, keepdims=True)))
+        w /= w.sum(axis=1, keepdims=True)
+        spread = np.einsum("ts,ts->t", w, np.sum((pos - matched[:, None, :]) ** 2, axis=2))
+    return state, matched, state < K, spread, sigma_d
+
+
+class FewRoadsNear(ValueError):
+    """Fewer than the asked share of keyframes has a road within ``RADIUS_M`` (a car park, a
+    gap in the extract): the caller falls back to a matcher without a search radius."""
 
 
 def match_on_roads(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz: np.ndarray, osm_path: str | Path,
-                   index: np.ndarray | None = None, margin_m: float = 100.0) -> Suggestions:
+                   index: np.ndarray | None = None, margin_m: float = 100.0, t_s: np.ndarray | None = None,
+                   min_near_share: float = 0.0) -> Suggestions:
     """Match keyframes (rows ``index`` of the run, default all) to the OSM road network.
 
-    The result has the drivable-area version's form (:class:`posefix.mapmatch.Suggestions`;
+    ``t_s``: the keyframes' times (s; default one a second, the keyframe default). The
+    result has the drivable-area version's form (:class:`posefix.mapmatch.Suggestions`;
     ``n_vertices`` counts road segments). Raises ``ValueError`` naming the file when it is
-    missing or has no drivable way within ``margin_m`` of the run.
+    missing or has no drivable way within ``margin_m`` of the run, and :class:`FewRoadsNear`
+    when fewer than ``min_near_share`` of the keyframes have a road within ``RADIUS_M``.
     """
     lon = np.asarray(lon_deg, dtype=float)
     lat = np.asarray(lat_deg, dtype=float)
@@ -189,6 +310,12 @@ def match_on_roads(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz:
         raise ValueError("need at least two keyframes to match")
     if not Path(osm_path).is_file():
         raise ValueError(f"{osm_path}:0: field file: no such OSM extract")
+    dt_s = 1.0
+    if t_s is not None:
+        dt_s = np.diff(np.asarray(t_s, dtype=float)[idx])
+        bad = np.flatnonzero(~(dt_s > 0))
+        if bad.size:
+            raise ValueError(f"keyframe {int(bad[0]) + 1}: field t_s: times must increase")
     ll = np.column_stack([lon[idx], lat[idx]])
     g0 = local_georef(float(ll[:, 0].min()), float(ll[:, 1].min()))
     pad_lon, pad_lat = margin_m * g0.dlon_deg_per_m, margin_m * g0.dlat_deg_per_m
@@ -200,7 +327,7 @@ def match_on_roads(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz:
         raise ValueError(f"{osm_path}:0: field highway: no drive ways within {margin_m} m of the run") from None
     p = net.georef.to_xy(ll)
     heading = heading_from_quaternion_wxyz(np.asarray(q_body_to_enu_wxyz, dtype=float)[idx])
-    matched, off_road, sigma, _ = match_xy(net, p, heading)
+    matched, off_road, sigma, _ = match_xy(net, p, heading, dt_s=dt_s, min_near_share=min_near_share)
     return Suggestions(index=idx, lonlat_deg=net.georef.to_lonlat(matched),
                        moved_m=np.linalg.norm(matched - p, axis=1), off_road=off_road, sigma_m=sigma,
-                       n_vertices=net.n_segments)
+                       n_vertices=net.n_segments, matcher="roads")

@@ -4,8 +4,10 @@ local metric frame, with a uniform grid index for candidate search.
 Frame: the equirectangular east/north plane of :func:`posefix.mapmatch.osm.local_georef`
 (scale error < 0.1 % over a few km, far below a road's width). Each way of the drive profile
 becomes its consecutive node pairs ``a -> b``; the grid (cell = ``CELL_M``) lists every
-segment under each cell its bounding box covers, so the segments within ``r <= CELL_M`` of a
-point are among those of the 3 x 3 cells around it.
+segment under each cell its bounding box covers, so the segments within
+``RADIUS_M = RING x CELL_M`` of a point are among those of the (2 RING + 1)^2 cells around it.
+The segments are also kept as flat coordinate arrays (``ax``, ``ay``, ``dx``, ``dy``,
+``inv_len2``): gathering 1-D arrays is what a candidate search spends its time on.
 
 Cache: reading the extract is most of a call's cost, and the same area is matched again and
 again (every revision, every operator): :func:`road_network` keeps the last
@@ -26,9 +28,11 @@ from posefix.mapmatch.floorplan import GeoRef
 from posefix.mapmatch.osm import local_georef, read_osm_ways
 from posefix.mapmatch.suggest import NoWaysError, file_sha256, snap_bbox
 
-__all__ = ["RoadNetwork", "road_network", "CELL_M"]
+__all__ = ["RoadNetwork", "road_network", "CELL_M", "RADIUS_M"]
 
-CELL_M = 50.0  # grid cell, and the largest candidate search radius
+CELL_M = 25.0  # grid cell
+RING = 2  # cells searched around a point's own: every segment within RADIUS_M is among them
+RADIUS_M = RING * CELL_M  # the largest candidate search radius
 CACHE_SIZE = 8
 
 _cache: OrderedDict = OrderedDict()
@@ -50,6 +54,11 @@ class RoadNetwork:
     cell_keys: np.ndarray
     cell_start: np.ndarray
     cell_segments: np.ndarray
+    ax: np.ndarray
+    ay: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    inv_len2: np.ndarray
 
     @property
     def n_segments(self) -> int:
@@ -60,11 +69,12 @@ class RoadNetwork:
         return ij[..., 0], ij[..., 1]
 
     def segments_near(self, p_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(point row, segment) pairs: every segment listed in the 3 x 3 cells around each point."""
+        """(point row, segment) pairs: every segment listed in the cells within ``RING`` of each point's."""
         ci, cj = self.cell_of(p_xy)
-        di, dj = np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij")
+        ring = np.arange(-RING, RING + 1)
+        di, dj = np.meshgrid(ring, ring, indexing="ij")
         keys = ((cj[:, None] + dj.ravel()) * self.n_cols + (ci[:, None] + di.ravel())).ravel()
-        rows = np.repeat(np.arange(len(ci)), 9)
+        rows = np.repeat(np.arange(len(ci)), ring.size**2)
         pos = np.searchsorted(self.cell_keys, keys)
         pos_c = np.minimum(pos, len(self.cell_keys) - 1)
         hit = self.cell_keys[pos_c] == keys
@@ -86,8 +96,8 @@ def build_network(ways, box: tuple[float, float, float, float]) -> RoadNetwork:
         b.append(xy[1:][keep])
         hw.append(np.full(int(keep.sum()), way.width_m / 2.0))
     a_xy, b_xy, half = np.concatenate(a), np.concatenate(b), np.concatenate(hw)
-    lo = np.minimum(a_xy, b_xy).min(axis=0) - 2 * CELL_M
-    hi = np.maximum(a_xy, b_xy).max(axis=0) + 2 * CELL_M
+    lo = np.minimum(a_xy, b_xy).min(axis=0) - (RING + 1) * CELL_M
+    hi = np.maximum(a_xy, b_xy).max(axis=0) + (RING + 1) * CELL_M
     n_cols = int(np.ceil((hi[0] - lo[0]) / CELL_M)) + 1
     i0, j0 = np.floor((np.minimum(a_xy, b_xy) - lo) / CELL_M).astype(np.int64).T
     i1, j1 = np.floor((np.maximum(a_xy, b_xy) - lo) / CELL_M).astype(np.int64).T
@@ -100,8 +110,11 @@ def build_network(ways, box: tuple[float, float, float, float]) -> RoadNetwork:
     order = np.argsort(keys_a, kind="stable")
     keys_a, segs_a = keys_a[order], segs_a[order]
     cell_keys, first = np.unique(keys_a, return_index=True)
+    d = b_xy - a_xy
     return RoadNetwork(georef=geo, a_xy=a_xy, b_xy=b_xy, half_width_m=half, origin_xy=lo, n_cols=n_cols,
-                       cell_keys=cell_keys, cell_start=np.append(first, len(keys_a)), cell_segments=segs_a)
+                       cell_keys=cell_keys, cell_start=np.append(first, len(keys_a)), cell_segments=segs_a,
+                       ax=a_xy[:, 0].copy(), ay=a_xy[:, 1].copy(), dx=d[:, 0].copy(), dy=d[:, 1].copy(),
+                       inv_len2=1.0 / np.einsum("ij,ij->i", d, d))
 
 
 def road_network(osm_path: str | Path, bbox: tuple[float, float, float, float]) -> RoadNetwork:

@@ -868,8 +868,8 @@ export interface paths {
         put?: never;
         /**
          * Run Suggestions
-         * @description Queue map-matching suggestions for a run's keyframes against the OpenStreetMap drivable
-         *     area (a job; its result is a ``SuggestionsOut``: per keyframe the matched lon/lat, how far
+         * @description Queue map-matching suggestions for a run's keyframes against the OpenStreetMap road
+         *     network, or its drivable-area grid (a job; its result is a ``SuggestionsOut``: per keyframe the matched lon/lat, how far
          *     it would move, whether it lies off the road, and the match's 1σ). Accepting one is a move
          *     of kind ``suggestion`` in ``POST /runs/{id}/edits``.
          */
@@ -2544,10 +2544,17 @@ export interface components {
         SuggestionRequest: {
             /**
              * Cell M
-             * @description drivable-area graph cell size, metres
+             * @description drivable-area grid cell size, metres (matcher grid)
              * @default 2
              */
             cell_m?: number;
+            /**
+             * Matcher
+             * @description roads: candidate projections onto the road network (the default; the grid takes over when most keyframes have no road within 50 m); grid: the drivable-area grid
+             * @default roads
+             * @enum {string}
+             */
+            matcher?: "roads" | "grid";
             /**
              * Revision
              * @description default: the latest ready revision
@@ -2572,7 +2579,15 @@ export interface components {
         SuggestionsOut: {
             /** Items */
             items: components["schemas"]["KeyframeSuggestion"][];
-            /** N Vertices */
+            /**
+             * Matcher
+             * @description the matcher that answered: roads or grid
+             */
+            matcher: string;
+            /**
+             * N Vertices
+             * @description road segments (roads) or grid vertices (grid) around the run
+             */
             n_vertices: number;
             /**
              * Off Road
