@@ -175,6 +175,36 @@ def _nonneg_lsq(A: np.ndarray, g: np.ndarray, w: np.ndarray) -> tuple[np.ndarray
     return best, best_cost
 
 
+def _nonneg_lsq_grid(F: np.ndarray, g: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``_nonneg_lsq`` of g ~ x0 + x1 F[i] for every row of F (m, b) at once: the 2x2 normal
+    equations per row in closed form (every active set tried, the cheapest feasible kept);
+    a row whose two columns are (nearly) collinear goes through ``_nonneg_lsq``.
+    Returns x (m, 2) and the cost (m,)."""
+    s11 = float(np.sum(w))
+    s12 = F @ w
+    s22 = (F * F) @ w
+    b1 = float(np.sum(w * g))
+    b2 = F @ (w * g)
+    det = s11 * s22 - s12 * s12
+    cand = np.zeros((3,) + F.shape[:1] + (2,))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cand[0, :, 0] = (s22 * b1 - s12 * b2) / det
+        cand[0, :, 1] = (s11 * b2 - s12 * b1) / det
+        cand[1, :, 0] = b1 / s11
+        cand[2, :, 1] = b2 / s22
+    ok = np.all(cand >= 0, axis=2) & np.all(np.isfinite(cand), axis=2)
+    cand = np.where(np.isfinite(cand), cand, 0.0)
+    cost = np.einsum("b,sib->si", w, (cand[:, :, :1] + cand[:, :, 1:] * F[None] - g) ** 2)
+    cost = np.where(ok, cost, np.inf)
+    pick = np.argmin(cost, axis=0)  # first of equal costs: the order _nonneg_lsq tries them in
+    rows = np.arange(F.shape[0])
+    x, c = cand[pick, rows], cost[pick, rows]
+    x[~np.isfinite(c)] = 0.0
+    for i in np.flatnonzero(~(det > 1e-9 * s11 * s22)):
+        x[i], c[i] = _nonneg_lsq(np.column_stack([np.ones_like(F[i]), F[i]]), g, w)
+    return x, c
+
+
 def fit_processes(h: np.ndarray, gamma: np.ndarray, n: np.ndarray, floor_m2: float) -> list[ProcessFit]:
     """Random-walk and Gauss-Markov fits (with nugget >= ``floor_m2``) to a variogram."""
     if len(h) == 0:
@@ -184,12 +214,12 @@ def fit_processes(h: np.ndarray, gamma: np.ndarray, n: np.ndarray, floor_m2: flo
     x, _ = _nonneg_lsq(np.column_stack([np.ones_like(h), h / 2.0]), gamma, w)
     q = max(x[1], 1e-8)
     fits.append(ProcessFit("random_walk", max(x[0], floor_m2), q * RW_TAU_S / 2.0, RW_TAU_S, q))
-    best = None
-    for tau in TAU_GRID_S:
-        x, cost = _nonneg_lsq(np.column_stack([np.ones_like(h), 1.0 - np.exp(-h / tau)]), gamma, w)
-        if best is None or cost < best[0]:
-            best = (cost, tau, x)
-    _, tau, x = best
+    xs, costs = _nonneg_lsq_grid(1.0 - np.exp(-h[None, :] / TAU_GRID_S[:, None]), gamma, w)
+    # the first of costs equal to round-off (a nugget alone costs the same at every tau), as a
+    # loop over the grid keeping strict improvements does
+    tie = 1e-9 * (costs.min() + 1e-6 * float(np.sum(w * gamma**2)))
+    i = int(np.flatnonzero(costs <= costs.min() + tie)[0])
+    tau, x = TAU_GRID_S[i], xs[i]
     s2 = max(x[1], 1e-8)
     fits.append(ProcessFit("gauss_markov", max(x[0], floor_m2), s2, float(tau), 2.0 * s2 / tau))
     return fits
