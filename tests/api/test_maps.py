@@ -246,6 +246,48 @@ class TestWalkTracking:
                 assert last["n_modes"] >= 2 and last["mode_spread_m"] > 10.0
         assert r.json()["error"] == "bad_start"
 
+    def test_fingerprints_say_whether_the_walks_wifi_was_used(self, app, client, users, tmp_path):
+        from posefix.mapmatch import read_walk
+        from posefix.mapmatch.fingerprints import build_fingerprints, save_fingerprints
+
+        fp = ready_floor(app, client, users)
+        url = f"/api/v1/floorplans/{fp['id']}/walks"
+        survey = [read_walk(w) for w in sorted((FLOOR / "walks").glob("*.txt")) if w != WALK]  # never the walk tracked
+        small = build_fingerprints(survey)
+        assert not small.f3_calibrated  # two survey walks cannot calibrate f3
+        save_fingerprints(small, tmp_path / "small.npz")
+        # The same map, its calibration set by hand (as the browser parity fixture does), so f3 is used.
+        small.f3_calibrated, small.f3_note, small.walk_corr = True, "", 0.25
+        save_fingerprints(small, tmp_path / "set.npz")
+
+        r = client.post(url, files={"file": (WALK.name, WALK.read_bytes())}, data={"start": "unknown"}, headers=users["client"])
+        assert r.status_code == 200 and r.json()["walk"]["wifi"] == {
+            "fingerprints": None, "fixes": 0, "used": False, "note": "no fingerprint file given", "walk_corr": None,
+            "robust": None}
+        r = client.post(url, files={"file": (WALK.name, WALK.read_bytes()),
+                                    "fingerprints": ("survey.npz", (tmp_path / "small.npz").read_bytes())},
+                        data={"start": "unknown"}, headers=users["client"])
+        assert r.status_code == 200, r.text
+        wifi = r.json()["walk"]["wifi"]
+        assert wifi["fingerprints"] == "survey.npz" and not wifi["used"] and wifi["fixes"] == 0
+        assert "f3 left out" in wifi["note"] and "needs 3" in wifi["note"]
+        r = client.post(url, files={"file": (WALK.name, WALK.read_bytes()),
+                                    "fingerprints": ("set.npz", (tmp_path / "set.npz").read_bytes())},
+                        data={"start": "unknown"}, headers=users["client"])
+        assert r.status_code == 200, r.text
+        body = r.json()
+        wifi = body["walk"]["wifi"]
+        n_scans = len({int(row[0]) for row in read_walk(WALK).wifi})
+        assert wifi["used"] and 0 < wifi["fixes"] <= n_scans and wifi["note"] == "" and wifi["robust"] is True
+        assert wifi["walk_corr"] == 0.25
+        # Each step still says whether it is placed, and how many places it may be.
+        assert all({"converged", "n_modes", "mode_spread_m"} <= set(s) for s in body["steps"])
+
+        r = client.post(url, files={"file": (WALK.name, WALK.read_bytes()), "fingerprints": ("junk.npz", b"not a zip")},
+                        headers=users["client"])
+        assert r.status_code == 422 and r.json()["error"] == "invalid_fingerprints", r.text
+        assert r.json()["detail"].startswith("junk.npz:0: field file: ") and r.json()["field"] == "file"
+
 
 class TestTrackingSession:
     def test_steps_one_by_one_match_the_offline_tracker(self, app, client, users):

@@ -56,6 +56,34 @@ def test_floor_upload_replay_walk_and_see_waypoint_errors(server, context, tmp_p
     page.evaluate("window.scrollTo(0, 0)")
     shot(page, "floor-walk-replay", docs=True)
 
+    # The same walk, unknown start, with a WiFi survey of the floor's OTHER walks: two survey walks
+    # cannot calibrate f3, and the page says so instead of using it; the placement says whether
+    # the walk converged.
+    from posefix.mapmatch import read_walk
+    from posefix.mapmatch.fingerprints import build_fingerprints, save_fingerprints
+
+    survey = build_fingerprints([read_walk(w) for w in sorted((FLOOR / "walks").glob("*.txt")) if w != WALK])
+    save_fingerprints(survey, tmp_path / "survey.npz")
+    survey.f3_calibrated, survey.f3_note, survey.walk_corr = True, "", 0.25  # calibration set by hand: f3 used
+    save_fingerprints(survey, tmp_path / "set.npz")
+    page.get_by_test_id("walk-start").select_option("unknown")
+    page.get_by_test_id("walk-fingerprints").set_input_files(str(tmp_path / "survey.npz"))
+    page.get_by_test_id("walk-track").click()
+    wifi = page.get_by_test_id("walk-wifi")
+    wifi.wait_for(timeout=30_000)
+    assert wifi.inner_text().startswith("WiFi not used: f3 left out: 2 survey walks"), wifi.inner_text()
+    placed = page.get_by_test_id("walk-converged").inner_text()
+    assert placed.startswith("Converged: the walk is placed") or placed.startswith("Not placed: "), placed
+    page.get_by_test_id("walk-fingerprints").set_input_files(str(tmp_path / "set.npz"))
+    page.get_by_test_id("walk-track").click()
+    page.wait_for_function("() => document.querySelector('[data-testid=walk-wifi]').textContent.startsWith('WiFi: ')", timeout=30_000)
+    text = wifi.inner_text()
+    assert " placed by the survey set.npz; the whole walk's WiFi counts as at most 4.0 fixes" in text, text
+    # The server's tracker reads the same survey and says the same.
+    page.get_by_test_id("walk-server").click()
+    page.wait_for_function("() => document.querySelector('[data-testid=server-error-mean]').textContent.includes('Server: WiFi')", timeout=30_000)
+    assert "placed by the survey set.npz" in page.get_by_test_id("server-error-mean").inner_text()
+
 
 def test_editor_accept_a_suggestion_and_submit(server, context, run_id):
     page = context.new_page()

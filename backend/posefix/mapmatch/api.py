@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from posefix.mapmatch.evaluate import evaluate_track
+from posefix.mapmatch.fingerprints import FingerprintMap, load_fingerprints
 from posefix.mapmatch.floorplan import (FloorFormatError, FloorReport, GeoRef, load_ilc_floor, raster_from_polygons,
                                         read_ilc_floor)
 from posefix.mapmatch.graph import build_graph
@@ -31,9 +32,9 @@ from posefix.mapmatch.tracker import Tracker, TrackResult, track_walk
 from posefix.mapmatch.viterbi import GaussianSummary
 
 __all__ = [
-    "FloorFormatError", "FloorReport", "GaussianSummary", "GeoRef", "Model", "TrackResult", "Tracker", "Walk",
+    "FingerprintMap", "FloorFormatError", "FloorReport", "GaussianSummary", "GeoRef", "Model", "TrackResult", "Tracker", "Walk",
     "WalkFormatError", "build_model", "build_model_report", "build_polygon_model", "current_summary", "evaluate_track",
-    "load_ilc_floor", "load_model", "read_ilc_floor", "read_track_csv", "read_walk", "save_model", "settled_steps",
+    "load_fingerprints", "load_ilc_floor", "load_model", "read_ilc_floor", "read_track_csv", "read_walk", "save_model", "settled_steps",
     "suggest_for_run", "Suggestions", "track_walk", "track_walk_file", "train_model", "write_track_csv",
 ]
 

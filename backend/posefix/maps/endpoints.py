@@ -47,6 +47,9 @@ WALK_UPLOAD: dict[str, Any] = {
             "start": {"type": "string", "default": "first_waypoint",
                       "description": "first_waypoint (the walk's first TYPE_WAYPOINT as known start, excluded from the "
                                      "error), unknown (uniform over the floor), or 'x,y' in floor metres"},
+            "fingerprints": {"type": "string", "format": "binary",
+                             "description": "optional: the floor's WiFi site survey (.npz from `posefix mapmatch "
+                                            "fingerprints`); the answer's walk.wifi says whether it was used and why not"},
         }}}}},
 }
 
@@ -156,15 +159,19 @@ def floor_image(floorplan_id: int, session: SessionDep, settings: SettingsDep, _
 async def track_walk(floorplan_id: int, request: Request, session: SessionDep, settings: SettingsDep, _user: AnyUploader) -> dict[str, Any]:
     """Track a walk file on the floor's model (inline: ~1 ms per step). Returns GeoJSON in floor
     metres: the matched and the dead-reckoning tracks, the waypoints with their error, and
-    ``steps`` (position, dead reckoning and 1σ error ellipse per step) and ``errors``
-    (at the waypoints: the competition's straight-line convention between them)."""
+    ``steps`` (position, dead reckoning and 1σ error ellipse per step, converged, modes) and
+    ``errors`` (at the waypoints: the competition's straight-line convention between them).
+    With a ``fingerprints`` file (the floor's WiFi survey) the walk's scans are used too, and
+    ``walk.wifi`` says how many fixes, or why none (a survey too small to calibrate them)."""
     fp = service.get_floorplan(session, floorplan_id)
     await run_in_threadpool(service.MODELS.get, settings, fp)  # 409 before reading the upload when there is no model yet
     form = await _form(request, service.MAX_WALK_BYTES, "a walk")
     up = _file(form)
     start = form_text(form, "start")
+    fpr = _file(form, "fingerprints") if form.get("fingerprints") is not None else None
     # CPU-bound (reading the file, ~1 ms per step): off the event loop.
-    return await run_in_threadpool(service.track_walk_upload, settings, fp, up.file, up.filename, start)
+    return await run_in_threadpool(service.track_walk_upload, settings, fp, up.file, up.filename, start,
+                                   fpr.file if fpr else None, fpr.filename if fpr else None)
 
 
 @router.post("/floorplans/{floorplan_id}/sessions", response_model=SessionCreated, status_code=status.HTTP_201_CREATED,

@@ -346,12 +346,15 @@ def parse_start(value: str | None) -> tuple[str, tuple[float, float] | None]:
     return "xy", xy
 
 
-def track_walk_upload(settings: Settings, fp: FloorPlan, fh: BinaryIO, filename: str | None, start: str | None) -> dict[str, Any]:
-    """Track an uploaded walk file: matched and dead-reckoning tracks, ellipses, waypoint errors."""
+def track_walk_upload(settings: Settings, fp: FloorPlan, fh: BinaryIO, filename: str | None, start: str | None,
+                      fingerprints_fh: BinaryIO | None = None, fingerprints_name: str | None = None) -> dict[str, Any]:
+    """Track an uploaded walk file: matched and dead-reckoning tracks, ellipses, waypoint errors;
+    with ``fingerprints_fh`` (a fingerprint .npz, the floor's WiFi survey) its scans too."""
     fname = uploads.safe_name(filename, "file")
     mode, xy = parse_start(start)
     model = MODELS.get(settings, fp)
     stage = staging_dir(settings)
+    fpm, fp_name = None, None
     try:
         path = stage / "walk.txt"
         uploads.copy_limited(fh, path, MAX_WALK_BYTES, fname)
@@ -361,6 +364,16 @@ def track_walk_upload(settings: Settings, fp: FloorPlan, fh: BinaryIO, filename:
             msg = str(exc).split(f"field {exc.field}: ", 1)[-1]
             raise Unprocessable(f"{fname}:{exc.line}: field {exc.field}: {msg}", code="invalid_walk",
                                 extra={"file": fname, "line": exc.line, "field": exc.field}) from None
+        if fingerprints_fh is not None:
+            fp_name = uploads.safe_name(fingerprints_name, "fingerprints")
+            fpath = stage / "fingerprints.npz"
+            uploads.copy_limited(fingerprints_fh, fpath, MAX_WALK_BYTES, fp_name)
+            try:
+                fpm = mapmatch.load_fingerprints(fpath)
+            except ValueError as exc:  # "{path}:0: field F: message"
+                field, _, msg = str(exc).partition("field ")[2].partition(": ")
+                raise Unprocessable(f"{fp_name}:0: field {field}: {msg}", code="invalid_fingerprints",
+                                    extra={"file": fp_name, "field": field}) from None
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     if mode == "first_waypoint":
@@ -369,9 +382,25 @@ def track_walk_upload(settings: Settings, fp: FloorPlan, fh: BinaryIO, filename:
                                 code="invalid_walk", extra={"file": fname, "field": "TYPE_WAYPOINT"})
         xy = (float(walk.waypoints[0, 1]), float(walk.waypoints[0, 2]))
     t0 = time.perf_counter()
-    res = mapmatch.track_walk(model, walk, start_xy_m=xy)
+    res = mapmatch.track_walk(model, walk, start_xy_m=xy, fingerprints=fpm)
     track_s = time.perf_counter() - t0
-    return walk_geojson(fp, model, walk, res, start_mode=mode, track_s=track_s, filename=fname)
+    out = walk_geojson(fp, model, walk, res, start_mode=mode, track_s=track_s, filename=fname)
+    out["walk"]["wifi"] = wifi_use(model, walk, fpm, fp_name)
+    return out
+
+
+def wifi_use(model: mapmatch.Model, walk: mapmatch.Walk, fpm, name: str | None) -> dict[str, Any]:
+    """What the walk's WiFi contributed: ``fingerprints`` (the file's name, None without one),
+    ``fixes`` (scans placed by the survey), ``used``, ``note`` (why not, when the survey could not
+    calibrate f3), ``walk_corr`` (its walk-long error correlation ρ: a walk's WiFi counts at
+    most 1/ρ fixes) and ``robust`` (f3's heavy-tailed form)."""
+    if fpm is None:
+        return {"fingerprints": None, "fixes": 0, "used": False, "note": "no fingerprint file given", "walk_corr": None,
+                "robust": None}
+    fixes = len(fpm.predict_walk(walk, model.graph.p_xy_m))
+    note = fpm.f3_note if not fpm.f3_calibrated else ("" if fixes else "no scan of this walk matched the survey")
+    return {"fingerprints": name, "fixes": fixes, "used": bool(fixes), "note": note, "walk_corr": _r(fpm.walk_corr),
+            "robust": bool(fpm.robust)}
 
 
 def _r(v: float, nd: int = 3) -> float:

@@ -315,8 +315,10 @@ export interface paths {
          * Track Walk
          * @description Track a walk file on the floor's model (inline: ~1 ms per step). Returns GeoJSON in floor
          *     metres: the matched and the dead-reckoning tracks, the waypoints with their error, and
-         *     ``steps`` (position, dead reckoning and 1σ error ellipse per step) and ``errors``
-         *     (at the waypoints: the competition's straight-line convention between them).
+         *     ``steps`` (position, dead reckoning and 1σ error ellipse per step, converged, modes) and
+         *     ``errors`` (at the waypoints: the competition's straight-line convention between them).
+         *     With a ``fingerprints`` file (the floor's WiFi survey) the walk's scans are used too, and
+         *     ``walk.wifi`` says how many fixes, or why none (a survey too small to calibrate them).
          */
         post: operations["track_walk_api_v1_floorplans__floorplan_id__walks_post"];
         delete?: never;
@@ -4152,6 +4154,11 @@ export interface operations {
                      * @description a walk in the competition's path-file format (.txt)
                      */
                     file: string;
+                    /**
+                     * Format: binary
+                     * @description optional: the floor's WiFi site survey (.npz from `posefix mapmatch fingerprints`); the answer's walk.wifi says whether it was used and why not
+                     */
+                    fingerprints?: string;
                     /**
                      * @description first_waypoint (the walk's first TYPE_WAYPOINT as known start, excluded from the error), unknown (uniform over the floor), or 'x,y' in floor metres
                      * @default first_waypoint

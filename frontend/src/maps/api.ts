@@ -38,7 +38,16 @@ export interface WaypointError {
 export interface WalkTrack {
   steps: WalkStep[];
   errors: { n: number; mean_m: number | null; median_m: number | null; p95_m: number | null; max_m: number | null; dr_mean_m?: number; skip_first: boolean; waypoints: WaypointError[] };
-  walk: { file: string; n_steps: number; start: string; track_ms: number; ms_per_step: number; converged_share?: number; converged_at_end?: boolean };
+  walk: { file: string; n_steps: number; start: string; track_ms: number; ms_per_step: number; converged_share?: number; converged_at_end?: boolean; wifi?: WalkWifi };
+}
+/** What a walk's WiFi contributed (the server's `walk.wifi`): survey fixes used, or why none. */
+export interface WalkWifi {
+  fingerprints: string | null;
+  fixes: number;
+  used: boolean;
+  note: string;
+  walk_corr: number | null;
+  robust: boolean | null;
 }
 export type JobView = Schemas["JobPublic"];
 

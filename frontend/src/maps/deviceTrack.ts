@@ -6,10 +6,11 @@
 import { networkError } from "../api/errors";
 import type { LivePoint } from "../tracker/live";
 import { type TrackerModel, loadModel } from "../tracker/model";
-import type { Walk } from "../tracker/sensors";
+import { type Walk, wifiScans } from "../tracker/sensors";
+import { type FingerprintMap, predictScan } from "../tracker/fingerprints";
 import type { WalkRun } from "../tracker/tracker";
 import { waypointErrors } from "../tracker/evaluate";
-import { type WalkStep, type WalkTrack, mapsApi } from "./api";
+import { type WalkStep, type WalkTrack, type WalkWifi, mapsApi } from "./api";
 
 const models = new Map<number, Promise<TrackerModel>>();
 
@@ -39,8 +40,17 @@ function mean(v: number[]): number | null {
   return v.length ? v.reduce((a, b) => a + b, 0) / v.length : null;
 }
 
+/** What a walk's WiFi gave the browser tracker, as the server reports it (`walk.wifi`): the
+ * scans the survey placed, or why none (an f3 the survey could not calibrate). */
+export function walkWifi(fp: FingerprintMap | null, walk: Walk, name: string | null): WalkWifi {
+  if (!fp) return { fingerprints: null, fixes: 0, used: false, note: "no fingerprint file given", walk_corr: null, robust: null };
+  const fixes = fp.f3Calibrated ? wifiScans(walk.wifi).filter((s) => predictScan(fp, s.rssi) !== null).length : 0;
+  const note = !fp.f3Calibrated ? fp.f3Note : fixes ? "" : "no scan of this walk matched the survey";
+  return { fingerprints: name, fixes, used: fixes > 0, note, walk_corr: Math.round(fp.walkCorr * 1000) / 1000, robust: fp.robust };
+}
+
 /** A walk tracked in the browser, as the page's track (live positions, errors at the waypoints). */
-export function walkTrackFromRun(run: WalkRun, walk: Walk, file: string, skipFirst: boolean): WalkTrack {
+export function walkTrackFromRun(run: WalkRun, walk: Walk, file: string, skipFirst: boolean, wifi?: WalkWifi): WalkTrack {
   const steps: WalkStep[] = Array.from(run.t_ms, (t, i) => ({
     i, t_ms: t, x_m: r3(run.x[i]), y_m: r3(run.y[i]), dr_x_m: r3(run.dr_x[i]), dr_y_m: r3(run.dr_y[i]),
     sigma_major_m: r3(run.sigma_major_m[i]), sigma_minor_m: r3(run.sigma_minor_m[i]), angle_deg: Math.round(run.angle_deg[i] * 10) / 10,
@@ -63,6 +73,7 @@ export function walkTrackFromRun(run: WalkRun, walk: Walk, file: string, skipFir
     walk: {
       file, n_steps: run.t_ms.length - 1, start: skipFirst ? "first_waypoint" : "unknown", track_ms: run.ms_per_step * (run.t_ms.length - 1), ms_per_step: run.ms_per_step,
       converged_share: Math.round(convergedShare * 1000) / 1000, converged_at_end: run.modes[run.modes.length - 1].converged,
+      ...(wifi ? { wifi } : {}),
     },
   };
 }

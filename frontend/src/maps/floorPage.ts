@@ -9,12 +9,13 @@
 import { describeError } from "../api/errors";
 import type { AppContext } from "../ui/context";
 import { clear, fmtTime, h, plural } from "../ui/dom";
-import { type FloorPlan, type WalkStep, type WalkTrack, jobResult, mapsApi } from "./api";
+import { type FloorPlan, type WalkStep, type WalkTrack, type WalkWifi, jobResult, mapsApi } from "./api";
+import { loadFingerprints } from "../tracker/fingerprints";
 import { LiveSession } from "../tracker/live";
 import { WalkFormatError, parseWalk } from "../tracker/sensors";
 import type { Mode } from "../tracker/modes";
 import { trackWalk } from "../tracker/tracker";
-import { floorModel, liveTrack, walkTrackFromRun } from "./deviceTrack";
+import { floorModel, liveTrack, walkTrackFromRun, walkWifi } from "./deviceTrack";
 import { FloorMap } from "./floorMap";
 import { ellipsePx, fitBox, fmtM, fromPx, parseStart, reachedWaypoints, toPx, walkBox, type View } from "./floorView";
 import { keepFloorsOffline, keepForOffline } from "./offline";
@@ -130,6 +131,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
   const meta = h("p", { class: "floor-meta", "data-testid": "floor-meta" });
   const canvas = h("canvas", { class: "floor-canvas", width: 900, height: 660, "data-testid": "floor-canvas", "aria-label": "Floor plan with the tracked walk" });
   const walkFile = h("input", { type: "file", accept: ".txt", "aria-label": "Walk file", "data-testid": "walk-file" });
+  const surveyFile = h("input", { type: "file", accept: ".npz", "aria-label": "WiFi survey (fingerprint file, optional)", "data-testid": "walk-fingerprints" });
   const start = h("select", { "aria-label": "Start", "data-testid": "walk-start" },
     h("option", { value: "first_waypoint" }, "Known start (first waypoint)"), h("option", { value: "unknown" }, "Unknown start"));
   const trackBtn = h("button", { type: "button", class: "primary", "data-testid": "walk-track" }, "Track walk");
@@ -166,7 +168,8 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
         h("h2", {}, "Track me"),
         h("p", {}, "Tracks this phone from its motion sensors, in the browser. Tap your start on the map (or leave it empty: the page then shows every place the steps fit). Works offline once this page and the model are loaded."),
         startField, h("div", { class: "track-me" }, meBtn, stopBtn), liveMsg,
-        h("h2", {}, "Track a walk"), h("p", {}, "A walk in the competition's path-file format (.txt), tracked in this browser."), walkFile, start, trackBtn, msg,
+        h("h2", {}, "Track a walk"), h("p", {}, "A walk in the competition's path-file format (.txt), tracked in this browser."), walkFile,
+        h("label", {}, "WiFi survey (optional: the .npz of ", h("code", {}, "posefix mapmatch fingerprints"), ")", surveyFile), start, trackBtn, msg,
         summary, serverBtn, serverLine, legend,
         h("table", { class: "floor-table" }, h("thead", {}, h("tr", {}, h("th", {}, "Waypoint"), h("th", {}, "CRF error"), h("th", {}, "Dead reckoning"))), errTable)))));
 
@@ -287,6 +290,15 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     return `not converged: ${(s.n_modes ?? 1) > 1 ? `${s.n_modes} places up to ${fmtM(s.mode_spread_m ?? 0)} apart` : `one place, 2σ ${fmtM(2 * s.sigma_major_m)} across`}`;
   }
 
+  /** What the walk's WiFi did: the survey fixes used, or why none (a survey too small to calibrate them). */
+  function wifiText(w: WalkWifi): string {
+    if (w.used) {
+      const cap = w.walk_corr ? `; the whole walk's WiFi counts as at most ${(1 / w.walk_corr).toFixed(1)} fixes, its errors being shared along the walk` : "";
+      return `WiFi: ${plural(w.fixes, "scan")} placed by the survey ${w.fingerprints ?? ""}${cap}.`;
+    }
+    return `WiFi not used: ${w.note}.`;
+  }
+
   function showTrack(t: WalkTrack) {
     track = t;
     stop();
@@ -300,6 +312,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       ...(t.walk.converged_at_end === undefined ? [] : [h("p", { "data-testid": "walk-converged" }, t.walk.converged_at_end
         ? `Converged: the walk is placed (${Math.round(100 * (t.walk.converged_share ?? 0))} % of its steps on one place).`
         : `Not placed: ${placeText(t.steps[t.steps.length - 1])} at the end; the track shown is the most likely, not a fix.`)]),
+      ...(t.walk.wifi ? [h("p", { "data-testid": "walk-wifi" }, wifiText(t.walk.wifi))] : []),
       e.n
         ? h("p", { "data-testid": "error-mean" }, `Error at ${e.n} waypoint${e.n === 1 ? "" : "s"}: mean ${fmtM(e.mean_m)}, max ${fmtM(e.max_m)} (dead reckoning: mean ${fmtM(e.dr_mean_m)}).`)
         : h("p", { "data-testid": "error-mean" }, "This walk has no surveyed waypoints to measure the error against."),
@@ -321,16 +334,18 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     msg.textContent = "Tracking in this browser…";
     serverLine.textContent = "";
     try {
-      const [model, text] = await Promise.all([floorModel(fp.id), f.text()]);
+      const sf = surveyFile.files?.[0] ?? null;
+      const [model, text, survey] = await Promise.all([floorModel(fp.id), f.text(), sf ? sf.arrayBuffer() : Promise.resolve(null)]);
       const walk = parseWalk(text, f.name);
+      const fpm = sf && survey ? await loadFingerprints(new Uint8Array(survey), sf.name) : null;
       const known = start.value === "first_waypoint";
       if (known && !walk.waypoints.length) throw new Error(`${f.name}: field TYPE_WAYPOINT: no waypoint to start from; choose Unknown start`);
-      const run = trackWalk(model, walk, known ? [walk.waypoints[0].x_m, walk.waypoints[0].y_m] : null);
+      const run = trackWalk(model, walk, known ? [walk.waypoints[0].x_m, walk.waypoints[0].y_m] : null, fpm);
       if (!alive) return;
       msg.textContent = "";
       stopLive();
       modes = null;
-      showTrack(walkTrackFromRun(run, walk, f.name, known));
+      showTrack(walkTrackFromRun(run, walk, f.name, known, walkWifi(fpm, walk, sf?.name ?? null)));
       serverBtn.disabled = false;
     } catch (err) {
       msg.textContent = err instanceof WalkFormatError || err instanceof Error ? err.message : describeError(err);
@@ -346,6 +361,8 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
     const fd = new FormData();
     fd.append("start", start.value);
     fd.append("file", f, f.name);
+    const sf = surveyFile.files?.[0];
+    if (sf) fd.append("fingerprints", sf, sf.name);
     serverBtn.disabled = true;
     serverLine.textContent = "Asking the server…";
     try {
@@ -354,6 +371,7 @@ function renderFloor(main: HTMLElement, _ctx: AppContext, id: number): () => voi
       serverLine.textContent = e.n
         ? `Server (smoothed over the whole walk): mean ${fmtM(e.mean_m)} at ${plural(e.n, "waypoint")}, ${t.walk.ms_per_step.toFixed(2)} ms per step; this browser shows the live (filtered) position.`
         : "The server tracked the walk; it has no waypoints to compare.";
+      if (t.walk.wifi?.fingerprints) serverLine.textContent += ` Server: ${wifiText(t.walk.wifi)}`;
     } catch (err) {
       serverLine.textContent = `The server could not be asked: ${describeError(err)}`;
     } finally {
