@@ -105,11 +105,11 @@ class BandFactor:
     b: int
 
 
-_LAPACK: list = []  # [(dpbtrf, dpbtrs) or None], found on first use
+_LAPACK: list = []  # [(dpbtrf, dpbtrs, ctypes) or None], found on first use
 
 
 def _lapack():
-    """``(dpbtrf, dpbtrs)`` of the LAPACK in numpy's wheel (ctypes), or None."""
+    """``(dpbtrf, dpbtrs, ctypes)`` of the LAPACK in numpy's wheel, or None."""
     if not _LAPACK:
         _LAPACK.append(_find_lapack())
     return _LAPACK[0]
@@ -132,13 +132,11 @@ def _find_lapack():
             except (OSError, AttributeError):
                 continue
             trf.restype = trs.restype = None
-            return trf, trs
+            return trf, trs, ctypes
     return None
 
 
-def _i64(v: int):
-    import ctypes
-
+def _i64(ctypes, v: int):
     return ctypes.byref(ctypes.c_int64(v))
 
 
@@ -164,14 +162,13 @@ def factor_upper(ab: np.ndarray, b: int, overwrite: bool = False) -> Factor | Ba
         raise ValueError(f"band of {ab.shape[0] - 1} super-diagonals is not block-tridiagonal with {b}x{b} blocks")
     if not (overwrite and ab.dtype == np.float64 and ab.flags.f_contiguous and ab.flags.writeable):
         ab = np.array(ab, dtype=float, order="F", copy=True)
-    import ctypes
-
+    trf, _, ctypes = lapack
     N, kd = ab.shape[1], ab.shape[0] - 1
     if N == 0:
         raise ValueError("empty system")
     info = ctypes.c_int64(0)
-    lapack[0](ctypes.c_char_p(b"U"), _i64(N), _i64(kd), ab.ctypes.data_as(ctypes.c_void_p), _i64(kd + 1),
-              ctypes.byref(info), ctypes.c_size_t(1))
+    trf(b"U", _i64(ctypes, N), _i64(ctypes, kd), ctypes.c_void_p(ab.ctypes.data), _i64(ctypes, kd + 1),
+        ctypes.byref(info), ctypes.c_size_t(1))
     # a NaN anywhere reaches the factor's diagonal, which LAPACK's positivity test lets pass
     if info.value != 0 or not np.isfinite(ab[kd]).all():
         raise LinAlgError("Matrix is not positive definite")
@@ -242,13 +239,12 @@ def solve(F: Factor | BandFactor, rhs: np.ndarray) -> np.ndarray:
     rhs = np.asarray(rhs, dtype=float)
     shape = rhs.shape
     if isinstance(F, BandFactor):
-        import ctypes
-
+        _, trs, ctypes = _lapack()
         x = np.array(rhs.reshape(len(rhs), -1), order="F", copy=True)
         N, kd = F.ab.shape[1], F.ab.shape[0] - 1
         info = ctypes.c_int64(0)
-        _lapack()[1](ctypes.c_char_p(b"U"), _i64(N), _i64(kd), _i64(x.shape[1]), F.ab.ctypes.data_as(ctypes.c_void_p),
-                     _i64(kd + 1), x.ctypes.data_as(ctypes.c_void_p), _i64(N), ctypes.byref(info), ctypes.c_size_t(1))
+        trs(b"U", _i64(ctypes, N), _i64(ctypes, kd), _i64(ctypes, x.shape[1]), ctypes.c_void_p(F.ab.ctypes.data),
+            _i64(ctypes, kd + 1), ctypes.c_void_p(x.ctypes.data), _i64(ctypes, N), ctypes.byref(info), ctypes.c_size_t(1))
         return x.reshape(shape)
     b = F.b
     y = rhs.reshape(F.n, b, -1)

@@ -47,8 +47,11 @@ def normalize_quat(q_wxyz: np.ndarray) -> np.ndarray:
 
 def quat_multiply(a_wxyz: np.ndarray, b_wxyz: np.ndarray) -> np.ndarray:
     """Hamilton product ``a * b`` (apply b first, then a), broadcasting over rows."""
-    aw, ax, ay, az = np.moveaxis(np.asarray(a_wxyz, dtype=float), -1, 0)
-    bw, bx, by, bz = np.moveaxis(np.asarray(b_wxyz, dtype=float), -1, 0)
+    a = np.asarray(a_wxyz, dtype=float)
+    b = np.asarray(b_wxyz, dtype=float)
+    # components as views (np.moveaxis costs more than the product on a few hundred rows)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
     return np.stack(
         [
             aw * bw - ax * bx - ay * by - az * bz,
@@ -69,7 +72,8 @@ def quat_conjugate(q_wxyz: np.ndarray) -> np.ndarray:
 
 def quat_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
     """Rotation matrices of unit quaternions, (n, 4) -> (n, 3, 3)."""
-    w, x, y, z = np.moveaxis(np.asarray(q_wxyz, dtype=float), -1, 0)
+    q = np.asarray(q_wxyz, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(np.shape(w) + (3, 3))
     out[..., 0, 0] = 1 - 2 * (y * y + z * z)
     out[..., 0, 1] = 2 * (x * y - w * z)
