@@ -78,7 +78,7 @@ def candidates_of(sim) -> dict:
     loo["naive"] = naive_held_out(t_kf[edit_kf], y, picks)
     chosen = problem.solve(edit_set(sim))
     return dict(truth=truth, pos=pos, loo=loo, m=m, chosen=chosen.drift.calibration.model,
-                posefix=_positions(problem, chosen))
+                predicted=chosen.drift.calibration.predicted_rmse_m, posefix=_positions(problem, chosen))
 
 
 def row(name: str, every: float, seed, r: dict) -> dict:
@@ -92,9 +92,10 @@ def row(name: str, every: float, seed, r: dict) -> dict:
     stack = _rmse(sum(wi * pos[k] for wi, k in zip(w, models)) - truth)
     blend = min(_rmse(a * pos[k] + (1 - a) * pos["naive"] - truth) for k in models for a in np.linspace(0, 1, 21))
     out = dict(case=name, every=every, seed=seed, m=r["m"], true=true, cv=cv, chosen=r["chosen"],
-               posefix=_rmse(r["posefix"] - truth), stack=stack, blend=blend, w=dict(zip(models, w)))
+               posefix=_rmse(r["posefix"] - truth), predicted=r["predicted"], stack=stack, blend=blend, w=dict(zip(models, w)))
     cells = " ".join(f"{k[:5]:>5} {true[k]:5.2f}/{cv[k]:5.2f} ({true[k] / cv[k]:4.2f})" for k in models)
     print(f"   {name:>16} {seed!s:>4} {every:>4.0f}s {r['m']:>3} | {cells} | chose {r['chosen']:>8} {out['posefix']:5.2f} "
+          f"pred/true {out['predicted'] / out['posefix']:4.2f} "
           f"| stack {stack:5.2f} [{' '.join(f'{v:.2f}' for v in w)}] | blend {blend:5.2f}", flush=True)
     return out
 
@@ -108,6 +109,8 @@ def summary(title: str, rows: list[dict]) -> None:
         v = np.array([r[key] for r in rows])
         print(f"   {title}, {label}: <= naive {int(np.sum(v <= naive))}/{len(v)}, <= plain (GTSAM's graph) "
               f"{int(np.sum(v <= 1.005 * gtsam))}/{len(v)}, mean /naive {np.mean(v / naive):.3f}")
+    honest = np.array([r["predicted"] / r["posefix"] for r in rows])
+    print(f"   {title}: predicted RMSE within x1.5 of the truth on {100 * np.mean((honest <= 1.5) & (honest >= 1 / 1.5)):.0f} %")
     ratios = {}
     for r in rows:
         for k in r["true"]:
