@@ -115,6 +115,11 @@ def _lapack():
     return _LAPACK[0]
 
 
+def has_lapack() -> bool:
+    """Whether ``factor`` runs on LAPACK (else the cyclic reduction)."""
+    return _lapack() is not None
+
+
 def _find_lapack():
     import ctypes
     import glob
@@ -140,16 +145,35 @@ def _i64(ctypes, v: int):
     return ctypes.byref(ctypes.c_int64(v))
 
 
+_PACK_INDEX: dict[int, np.ndarray] = {}
+
+
+def _pack_index(b: int) -> np.ndarray:
+    """Where each entry of a block column's band (b columns x 2b rows) comes from in the row
+    ``[U[k-1] (b*b), D[k] (b*b), 0]``: U[k-1][:, c] fills band rows b-1-c .. 2b-2-c and
+    D[k][:c+1, c] the rows below; what lies above the band reads the 0."""
+    idx = _PACK_INDEX.get(b)
+    if idx is None:
+        idx = np.full((b, 2 * b), 2 * b * b, dtype=np.int64)
+        for c in range(b):
+            for i in range(b):
+                idx[c, b - 1 - c + i] = i * b + c
+            for i in range(c + 1):
+                idx[c, 2 * b - 1 - c + i] = b * b + i * b + c
+        idx = _PACK_INDEX[b] = idx.ravel()
+    return idx
+
+
 def pack_upper(D: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """The matrix in LAPACK's upper band form (2b, n b), Fortran order (a new array)."""
+    """The matrix in LAPACK's upper band form (2b, n b), Fortran order (a new array): one
+    gather from the blocks (strided writes block column by block column cost twice as long)."""
     n, b = D.shape[0], D.shape[1]
-    M = np.zeros((n, b, 2 * b))  # [block, column in block, band row]: Fortran order of (2b, n b)
-    for c in range(b):
-        # column c of block k: U[k-1][:, c] in band rows b-1-c .. 2b-2-c, D[k][:c+1, c] below
-        if n > 1:
-            M[1:, c, b - 1 - c:2 * b - 1 - c] = U[:, :, c]
-        M[:, c, 2 * b - 1 - c:] = D[:, :c + 1, c]
-    return M.reshape(n * b, 2 * b).T
+    src = np.zeros((n, 2 * b * b + 1))
+    if n > 1:
+        src[1:, :b * b] = U.reshape(n - 1, b * b)
+    src[:, b * b:2 * b * b] = D.reshape(n, b * b)
+    # rows [block, column in block, band row]: the Fortran order of (2b, n b)
+    return np.take(src, _pack_index(b), axis=1).reshape(n * b, 2 * b).T
 
 
 def factor_upper(ab: np.ndarray, b: int, overwrite: bool = False) -> Factor | BandFactor:

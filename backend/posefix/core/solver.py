@@ -281,23 +281,33 @@ def solve_banded(
     lam, nu = initial_lambda, 2.0
     status, message, it = "max_iterations", f"stopped after {max_iterations} iterations", 0
     accepted = 0
+    model_of = None  # the evaluation D, U, g (and their band) were assembled at: a rejected step keeps them
     while it < max_iterations:
         it += 1
-        D, U, g = T.normal_equations(terms, ev)
-        if fixed is not None:
-            D[fixed] = np.eye(6)
-            g.reshape(-1, 6)[fixed] = 0.0
-            U[fixed[:-1] | fixed[1:]] = 0.0
-        diag = np.maximum(np.einsum("kii->ki", D).ravel(), 1e-12)
+        if model_of is not ev:
+            D, U, g = T.normal_equations(terms, ev)
+            if fixed is not None:
+                D[fixed] = np.eye(6)
+                g.reshape(-1, 6)[fixed] = 0.0
+                U[fixed[:-1] | fixed[1:]] = 0.0
+            diag = np.maximum(np.einsum("kii->ki", D).ravel(), 1e-12)
+            # packed once per model; each damping only adds to the band's diagonal row
+            ab0 = banded.pack_upper(D, U) if banded.has_lapack() else None
+            model_of = ev
         gnorm = float(np.max(np.abs(g))) if g.size else 0.0
         if gnorm <= 1e-12 * max(1.0, F):
             status, message = "converged", "gradient is zero to machine precision"
             it -= 1
             break
         try:
-            damped = D.copy()
-            damped[:, range(6), range(6)] += lam * diag.reshape(-1, 6)
-            dx = banded.solve(banded.factor(damped, U), -g)
+            if ab0 is not None:
+                ab = ab0.copy(order="F")
+                ab[BAND_U] += lam * diag
+                dx = banded.solve(banded.factor_upper(ab, 6, overwrite=True), -g)
+            else:
+                damped = D.copy()
+                damped[:, range(6), range(6)] += lam * diag.reshape(-1, 6)
+                dx = banded.solve(banded.factor(damped, U), -g)
         except LinAlgError:
             lam, nu = lam * nu, nu * 2.0
             continue
