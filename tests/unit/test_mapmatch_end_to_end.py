@@ -90,11 +90,13 @@ def test_cli_train_learns_the_step_scale_unless_told_not_to(model, tmp_path):
     h0 = load_model(tmp_path / "m0.npz").step_model.height_m
     assert h0 == model.step_model.height_m
     assert 0.7 <= h1 / h0 <= 1.4 and h1 != h0
-    # The ellipse scale is learned too (reported, kept in the file) unless told not to.
-    assert "ellipse_scale:" in out.output and load_model(tmp_path / "m0.npz").ellipse_scale != 1.0
-    out = r.invoke(app, base + ["--no-ellipse", "--output", str(tmp_path / "m2.npz")])
-    assert out.exit_code == 0 and "ellipse_scale:" not in out.output
-    assert load_model(tmp_path / "m2.npz").ellipse_scale == 1.0
+    # The walks' spread is reported too; one walk cannot measure a spread between walks, so the
+    # file keeps the defaults, and says so.
+    assert ("walk_spread: heading 10.0 deg, step scale 7.0 % (default: 1 walks with two waypoint segments, "
+            "3 needed)") in out.output
+    assert load_model(tmp_path / "m0.npz").walk_heading_sd_rad == model.walk_heading_sd_rad
+    out = r.invoke(app, base + ["--no-walk-spread", "--output", str(tmp_path / "m2.npz")])
+    assert out.exit_code == 0 and "walk_spread:" not in out.output
 
 
 def test_cli_track_with_fingerprints_takes_the_wifi_correlation_time(model, tmp_path):
@@ -102,7 +104,8 @@ def test_cli_track_with_fingerprints_takes_the_wifi_correlation_time(model, tmp_
 
     app = build_app()
     r = CliRunner()
-    save_model(model, tmp_path / "m.npz")
+    # The walk's heading and scale not marginalised: their spread would hide what WiFi does to the ellipses.
+    save_model(model.with_(walk_heading_sd_rad=0.0, walk_scale_sd=0.0), tmp_path / "m.npz")
     others = [str(p) for p in sorted((FLOOR / "walks").glob("*.txt")) if p != WALK][:12]
     out = r.invoke(app, ["mapmatch", "fingerprints", "--floor", str(FLOOR), *sum((["--walks", w] for w in others), []),
                          "--output", str(tmp_path / "fp.npz")])

@@ -121,10 +121,11 @@ def _f3_calibration_words(fp) -> str:
 @click.option("--step-em/--no-step-em", default=False, help="Learn the step constant gamma (m) by hard EM.")
 @click.option("--weights/--no-weights", default=True, help="Learn the weights of f1, f2 by conditional likelihood.")
 @click.option("--step-scale/--no-step-scale", default=True, help="Scale step lengths by surveyed / dead-reckoned distance between waypoints.")
-@click.option("--ellipse/--no-ellipse", default=True, help="Scale the reported ellipses so 90 % of these walks' waypoints fall inside 2 sigma.")
+@click.option("--walk-spread/--no-walk-spread", default=True,
+              help="Measure how far the walks' own heading offsets and step scales spread about the floor's; track marginalises them.")
 def train(model_path: Path, walks: tuple[Path, ...], output: Path, heading_bias: bool, step_em: bool, weights: bool,
-          step_scale: bool, ellipse: bool) -> None:
-    """Learn heading bias, step-length scale, step constants, feature weights and the ellipse scale from surveyed walks.
+          step_scale: bool, walk_spread: bool) -> None:
+    """Learn heading bias and its spread between walks, step-length scale, step constants and feature weights from surveyed walks.
 
     Each walk starts at its first waypoint; the waypoints clamp the likelihood (within 2 m).
     """
@@ -139,7 +140,8 @@ def train(model_path: Path, walks: tuple[Path, ...], output: Path, heading_bias:
         ws = [read_walk(w) for w in tqdm(walks, desc="reading walks", unit="walk")]
         bar = tqdm(total=3, desc="training", unit="stage")
         model2, report = train_model(model, ws, heading_bias=heading_bias, step_em=step_em, weights=weights,
-                                     progress=lambda: bar.update(1), step_scale=step_scale, ellipse=ellipse)
+                                     progress=lambda: bar.update(1), step_scale=step_scale,
+                                     walk_spread=walk_spread)
         bar.close()
         with _atomic(output, ".npz") as tmp:
             size = save_model(model2, tmp)

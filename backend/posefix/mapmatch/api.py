@@ -91,10 +91,12 @@ def settled_steps(acc: np.ndarray, rotvec: np.ndarray, after_ms: float, until_ms
 
 def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step_em: bool = False,
                 weights: bool = True, progress: Callable[[], None] | None = None,
-                step_scale: bool = True, wifi_weight: bool = False, ellipse: bool = True) -> tuple[Model, dict]:
-    """Learn the heading bias, then the step-length scale, then (optionally) γ by hard EM,
-    then the f1/f2 weights, then (``ellipse``) the scale that makes the reported ellipses
-    honest on these walks (:func:`posefix.mapmatch.learn.learn_ellipse_scale`),
+                step_scale: bool = True, wifi_weight: bool = False, walk_spread: bool = True) -> tuple[Model, dict]:
+    """Learn the heading bias, then the step-length scale, then (``walk_spread``) how far the
+    walks' own heading offsets and step scales spread about them, which ``track_walk``
+    marginalises (:func:`posefix.mapmatch.learn.learn_walk_spread`; the model's defaults stay
+    with fewer than three walks to measure it on), then (optionally) γ by hard EM, then the
+    f1/f2 weights,
     and f3's when ``wifi_weight`` and at least three walks have
     WiFi scans: each training walk then gets f3 from a fingerprint map of the *other*
     training walks (leave-one-walk-out, so the weight is learned for a scan the map has
@@ -105,7 +107,7 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
     Every walk starts at its first waypoint. Returns the new model and a report dict.
     """
     from posefix.mapmatch.learn import (clamp_states, learn_heading_bias, learn_step_constants,
-                                        learn_step_scale, learn_weights, walk_features)
+                                        learn_step_scale, learn_walk_spread, learn_weights, walk_features)
 
     tick = progress or (lambda: None)
     surveyed = [w for w in walks if w.waypoints.shape[0] >= 2]
@@ -120,6 +122,15 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
         sm = learn_step_scale(surveyed, model.step_model)
         report["step_scale"] = round(sm.height_m / model.step_model.height_m, 3)
         model = model.with_(step_model=sm)
+    if walk_spread:
+        # After the floor's bias and scale: the walks' own offsets and scales about them.
+        sd_h, sd_k, n = learn_walk_spread(surveyed, model.step_model)
+        if sd_h is not None:
+            model = model.with_(walk_heading_sd_rad=sd_h, walk_scale_sd=sd_k)
+        report["walk_spread"] = (f"heading {np.degrees(model.walk_heading_sd_rad):.1f} deg, step scale "
+                                 f"{100 * model.walk_scale_sd:.1f} %"
+                                 + (f" (measured on {n} walks)" if sd_h is not None
+                                    else f" (default: {n} walks with two waypoint segments, 3 needed)"))
     tick()
     if step_em:
         sm = learn_step_constants(model, [(steps_from_walk(w), tuple(w.waypoints[0, 1:3])) for w in surveyed])
@@ -166,13 +177,6 @@ def train_model(model: Model, walks: list[Walk], heading_bias: bool = True, step
         model = model.with_(weights=fit.weights)
         report["weights"] = {k: round(v, 3) for k, v in fit.weights.items()}
         report["log_likelihood"] = round(fit.log_likelihood, 2)
-    if ellipse:
-        from posefix.mapmatch.learn import learn_ellipse_scale
-
-        scale, n = learn_ellipse_scale(model, surveyed)
-        model = model.with_(ellipse_scale=scale)
-        report["ellipse_scale"] = round(scale, 3)
-        report["ellipse_waypoints"] = n
     tick()
     return model, report
 

@@ -19,16 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["WalkError", "interpolate_xy", "evaluate_track", "summarise", "mahalanobis2_at_waypoints",
-           "CHI2_2_COVER_2SIGMA", "ELLIPSE_COVER"]
+           "CHI2_2_COVER_2SIGMA"]
 
 # A calibrated 2-D Gaussian puts 1 - e⁻² = 86.5 % of its draws inside its 2σ ellipse.
 CHI2_2_COVER_2SIGMA = 1.0 - float(np.exp(-2.0))
-# The share of surveyed positions the reported 2σ ellipse is made to hold on the training
-# walks (learn.learn_ellipse_scale): 90 %, the bar a "converged" answer must clear, a little
-# above a Gaussian's 86.5 % (and inside the 86 ± 5 % asked of all answers), because a
-# converged answer must be right at least that often even on walks the floor was not
-# trained on, and walks differ more than the training walks show.
-ELLIPSE_COVER = 0.90
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ from posefix.mapmatch.viterbi import forward_backward, viterbi
 
 __all__ = [
     "learn_step_scale",
-    "learn_ellipse_scale",
+    "learn_walk_spread",
     "WalkFeatures",
     "walk_features",
     "clamp_states",
@@ -318,34 +318,29 @@ def learn_step_scale(walks: list[Walk], step_model: StepModel, heading: str = "r
     return replace(step_model, height_m=step_model.height_m * s, gamma_m=step_model.gamma_m * s)
 
 
-ELLIPSE_SCALE_BOUNDS = (0.25, 25.0)  # σ × 0.5 .. × 5: outside, the model or the data is broken
+def learn_walk_spread(walks: list[Walk], step_model: StepModel, heading: str = "rotation_vector",
+                      min_walks: int = 3) -> tuple[float | None, float | None, int]:
+    """How far the walks' own heading offsets (rad) and step-length scales (log) spread about the
+    floor's, and the number of walks measured; (None, None, n) with fewer than ``min_walks``
+    walks of two waypoint segments or more.
 
-
-def learn_ellipse_scale(model, walks: list[Walk], heading: str = "rotation_vector") -> tuple[float, int]:
-    """Covariance scale s that makes the reported 2σ ellipses honest on surveyed walks, and the
-    number of waypoints it was measured on.
-
-    Each walk is tracked from its first waypoint as a user would (:func:`track_walk`, the
-    walk's own calibration included) and the squared Mahalanobis distance m² of every later
-    waypoint under the reported ellipse is measured (:func:`posefix.mapmatch.evaluate.mahalanobis2_at_waypoints`).
-    The scale puts :data:`posefix.mapmatch.evaluate.ELLIPSE_COVER` (90 %) of them inside the
-    2σ ellipse: ``s = q₉₀(m²) / 4`` (relative to the model's present scale; a quantile at the
-    target, not the median: the errors are heavier-tailed than a Gaussian; a calibrated
-    Gaussian would hold 86.5 %). Why the posterior needs it: the CRF counts each step's
-    error as independent, but a walker's stride and heading errors persist over many steps,
-    and the survey's own waypoints err by a metre or so. Without two waypoints anywhere: 1.
+    Each walk's offset and scale are :func:`learn_heading_bias` and :func:`learn_step_scale`'s
+    ratio over its own waypoint segments, with the floor's bias and scale (``step_model``)
+    applied: what is left is how this walk's phone and walker differ (how the phone is held,
+    the magnetic field along its route, the stride). The spreads are their RMS. The CRF counts
+    heading and length errors as independent per step, so an error that lasts the whole walk
+    is what its posterior cannot see; :func:`posefix.mapmatch.tracker.track_walk` marginalises
+    over it with these σ.
     """
-    from posefix.mapmatch.evaluate import ELLIPSE_COVER, mahalanobis2_at_waypoints
-    from posefix.mapmatch.tracker import track_walk
-
-    m2 = []
+    offs, scales = [], []
     for w in walks:
-        if w.waypoints.shape[0] < 2:
+        dd, dw = waypoint_segments([w], step_model, heading)
+        if dd.shape[0] < 2:
             continue
-        res = track_walk(model, w, start_xy_m=tuple(w.waypoints[0, 1:3]), heading=heading)
-        m2.append(mahalanobis2_at_waypoints(w.waypoints, res, skip_first=True))
-    m = np.concatenate(m2) if m2 else np.zeros(0)
-    if m.size == 0:
-        return float(model.ellipse_scale), 0
-    s = float(np.quantile(m, ELLIPSE_COVER)) / 4.0
-    return float(model.ellipse_scale * np.clip(s, *ELLIPSE_SCALE_BOUNDS)), int(m.size)
+        a = np.arctan2(dw[:, 1], dw[:, 0]) - np.arctan2(dd[:, 1], dd[:, 0])
+        length = np.linalg.norm(dw, axis=1)
+        offs.append(np.arctan2(np.sum(length * np.sin(a)), np.sum(length * np.cos(a))))
+        scales.append(np.log(length.sum() / np.linalg.norm(dd, axis=1).sum()))
+    if len(offs) < min_walks:
+        return None, None, len(offs)
+    return float(np.sqrt(np.mean(np.square(offs)))), float(np.sqrt(np.mean(np.square(scales)))), len(offs)

@@ -23,8 +23,12 @@ member             dtype      meaning
 ``sigmas``         float64    ``[len_m, heading_rad, window_steps, min_span_m, wifi_corr_s]``
                               (files with the first four only read as wifi_corr_s = 20 s)
 ``beam``           float64    pruning width in nats (``inf`` = none)
-``ellipse_scale``  float64    covariance scale of the reported ellipses, calibrated on the
-                              training walks (optional; absent = 1)
+``ellipse_scale``  float64    covariance scale of the reported ellipses (optional; absent = 1;
+                              no longer learned: files from before keep theirs)
+``walk_spread``    float64    ``[heading_sd_rad, scale_sd]``: σ of a walk's own heading offset
+                              about ``heading_bias_rad`` and of its step-length scale (log)
+                              about the model's, marginalised by ``track_walk`` (optional;
+                              absent = [10°, 0.07])
 =================  =========  ===========================================================
 
 A device rebuilds the dense ``(V, K)`` transition tables from ``ij`` + ``trans_mask`` in
@@ -52,6 +56,14 @@ VERSION = 1
 
 DEFAULT_WEIGHTS = {"f1": 1.0, "f2": 0.0, "f3": 1.0, "f4": 0.5}
 
+# How far one walk's heading offset and step-length scale stray from the floor's, before walks of
+# the floor have measured it (learn.learn_walk_spread does). Heading: a phone's rotation-vector
+# heading indoors is off by the magnetic field of the building's steel and by how the phone is
+# held, 5-15° from one walk to the next. Scale: a step-frequency length model errs by 5-10 %
+# for a walker it was not fitted to (stride differs with leg length and pace at one cadence).
+WALK_HEADING_SD_RAD = float(np.deg2rad(10.0))
+WALK_SCALE_SD = 0.07
+
 
 class ModelFormatError(ValueError):
     """A model file that cannot be read; ``str()`` names file and member."""
@@ -68,7 +80,9 @@ class Model:
     weights: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_WEIGHTS))
     sigmas: FeatureSigmas = field(default_factory=FeatureSigmas)
     beam: float | None = DEFAULT_BEAM
-    ellipse_scale: float = 1.0  # learn.learn_ellipse_scale: reported covariance × this
+    ellipse_scale: float = 1.0  # reported covariance × this (files from before kept it; no longer learned)
+    walk_heading_sd_rad: float = WALK_HEADING_SD_RAD  # learn.learn_walk_spread
+    walk_scale_sd: float = WALK_SCALE_SD  # learn.learn_walk_spread (log of the step-length scale)
 
     def with_(self, **kw) -> "Model":
         return replace(self, **kw)
@@ -94,6 +108,7 @@ def _arrays(model: Model) -> dict[str, np.ndarray]:
         "sigmas": np.array([sg.len_m, sg.heading_rad, sg.window_steps, sg.min_span_m, sg.wifi_corr_s]),
         "beam": np.array(np.inf if model.beam is None else model.beam),
         "ellipse_scale": np.array(float(model.ellipse_scale)),
+        "walk_spread": np.array([float(model.walk_heading_sd_rad), float(model.walk_scale_sd)]),
     }
 
 
@@ -148,10 +163,16 @@ def load_model(path: str | Path) -> Model:
         ell = float(z["ellipse_scale"]) if "ellipse_scale" in z.files else 1.0
         if not (np.isfinite(ell) and ell > 0.0):
             raise ModelFormatError(p, "ellipse_scale", f"must be a positive number, got {ell}")
+        spread = z["walk_spread"].tolist() if "walk_spread" in z.files else [WALK_HEADING_SD_RAD, WALK_SCALE_SD]
+        if not (len(spread) == 2 and all(np.isfinite(spread)) and 0.0 <= spread[0] <= np.pi / 4
+                and 0.0 <= spread[1] <= 0.5):
+            raise ModelFormatError(p, "walk_spread", "expected [heading_sd_rad in [0, pi/4], scale_sd in [0, 0.5]], "
+                                   f"got {spread}")
     return Model(graph=graph,
                  step_model=StepModel(height_m=h, alpha_s=a, beta=b, gamma_m=gm, heading_bias_rad=hb,
                                       min_len_m=lo, max_len_m=hi),
                  weights=dict(zip(FEATURE_NAMES, w)),
                  sigmas=FeatureSigmas(len_m=s[0], heading_rad=s[1], window_steps=int(s[2]), min_span_m=s[3],
                                       wifi_corr_s=float(tau)),
-                 beam=None if not np.isfinite(beam) else beam, ellipse_scale=ell)
+                 beam=None if not np.isfinite(beam) else beam, ellipse_scale=ell,
+                 walk_heading_sd_rad=float(spread[0]), walk_scale_sd=float(spread[1]))

@@ -63,8 +63,7 @@ def gaussian_summary(p_xy_m: np.ndarray, logp: np.ndarray, min_sigma_m: float = 
 
     ``min_sigma_m`` adds an isotropic floor (e.g. the cell's own spread c/√12). Entries
     more than ``cut_nats`` below the maximum (weight < 2e-9 each) are left out for speed.
-    ``cov_scale`` multiplies the covariance (the model's calibrated ellipse scale,
-    :func:`posefix.mapmatch.learn.learn_ellipse_scale`); the mean is unchanged.
+    ``cov_scale`` multiplies the covariance (a model file's ``ellipse_scale``); the mean is unchanged.
     """
     top = float(np.max(logp))
     sel = logp > top - cut_nats

@@ -418,7 +418,7 @@ export function gaussianSummary(g: Graph, w: Float64Array, live: Int32Array, min
     cxy += dx * x * dy;
     cyy += dy * x * dy;
   }
-  // The floor, then the model's calibrated ellipse scale (posefix.mapmatch.learn.learn_ellipse_scale).
+  // The floor, then the model file's ellipse_scale (1 unless an older file kept one).
   cxx = (cxx + minSigma * minSigma) * covScale;
   cyy = (cyy + minSigma * minSigma) * covScale;
   cxy *= covScale;
