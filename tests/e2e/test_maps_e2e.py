@@ -5,6 +5,7 @@ revision stores the move as a suggestion."""
 
 from __future__ import annotations
 
+import re
 import zipfile
 from pathlib import Path
 
@@ -72,8 +73,9 @@ def test_floor_upload_replay_walk_and_see_waypoint_errors(server, context, tmp_p
     wifi = page.get_by_test_id("walk-wifi")
     wifi.wait_for(timeout=30_000)
     assert wifi.inner_text().startswith("WiFi not used: f3 left out: 2 survey walks"), wifi.inner_text()
+    # f3 left out, motion only: the walk's shape fits several corridors (as the API test finds).
     placed = page.get_by_test_id("walk-converged").inner_text()
-    assert placed.startswith("Converged: the walk is placed") or placed.startswith("Not placed: "), placed
+    assert re.match(r"Not placed: not converged: \d+ places up to [\d.]+ m apart at the end", placed), placed
     page.get_by_test_id("walk-fingerprints").set_input_files(str(tmp_path / "set.npz"))
     page.get_by_test_id("walk-track").click()
     page.wait_for_function("() => document.querySelector('[data-testid=walk-wifi]').textContent.startsWith('WiFi: ')", timeout=30_000)

@@ -140,3 +140,10 @@ def test_cli_track_says_whether_it_converged(tmp_path):
     assert "converged: yes" in out.output
     rows = (tmp_path / "t.csv").read_text().splitlines()
     assert rows[0].endswith(",converged,n_modes,mode_spread_m") and rows[-1].split(",")[-3:] == ["1", "1", "0.0"]
+    # Unknown start, motion only: the walk's shape fits several places, and the CLI names them.
+    out = r.invoke(app, ["mapmatch", "track", str(walk), "--model", str(tmp_path / "m.npz"),
+                         "--output", str(tmp_path / "u.csv")])
+    assert out.exit_code == 0, out.output
+    assert "converged: no - the walk fits " in out.output and " places up to " in out.output
+    last = (tmp_path / "u.csv").read_text().splitlines()[-1].split(",")
+    assert last[-3] == "0" and int(last[-2]) >= 2 and float(last[-1]) > 0.0
