@@ -1,15 +1,15 @@
 """Match a vehicle run's keyframes to the road network: candidates projected onto road
 segments (as FMM and Valhalla do) and a linear-chain CRF decoded by Viterbi.
 
-States at keyframe t: up to ``K`` candidates ``c_tk``, the projections of the reported
-position ``p_t`` onto the nearest road segments within ``RADIUS_M``, plus one off-road state
-that stays at ``p_t``. The energy of a path (the negative log of its unnormalised
+States at keyframe t: up to ``K`` candidates ``c_tk``, the projections of the position
+``p_t`` (the reported one moved by the bias estimated so far, below) onto the nearest road
+segments within ``RADIUS_M``, plus one off-road state that stays at ``p_t``. The energy of a path (the negative log of its unnormalised
 probability) is
 
     E = sum_t U_t(k_t) + sum_t B_t(k_t, k_t+1)
 
     U_t(k)   = |p_t - c_tk|^2 / (2 sigma_d^2) + [moving] delta_tk^2 / (2 sigma_h^2)   (road states)
-    U_t(off) = OFF_ROAD_Z^2 / 2                     (as costly as a road 3 sigma_d away)
+    U_t(off) = OFF_ROAD_COST = 50                   (a road 10 sigma_d away: only where none is within reach)
     B_t(i,j) = |(c_t+1,j - c_ti) - (p_t+1 - p_t)|^2 / (2 sigma_s^2)
 
 with ``delta`` the angle between the body's heading and the segment (undirected, so
@@ -27,26 +27,34 @@ The bias. A projection only moves a keyframe across its road, so a GNSS bias alo
 straight road would stay, and on a straight road that is most of the error. The run's
 error is a slowly varying bias ``b_t`` (the shape is right, the position wrong), so after
 each decoding the bias is estimated from the matched roads, every road constraining it
-across that road only, and the turns constraining the rest:
+across that road only, and the turns constraining the rest. A car also drives in a lane,
+not on the centreline: ``o``, the run's lane offset (metres right of travel: positive in
+right-hand traffic, negative in left-hand), is estimated with it:
 
-    min_b  sum_t w_t (n_t . (p_t + b_t - c_t))^2                  (road t's line, unit normal n_t)
-         + sum_t |b_t+1 - phi_t b_t|^2 / q_t + |b_0|^2 / sigma_b^2
+    min_{b,o}  sum_t w_t (n_t . (p_t + b_t - c_t) - s_t o)^2       (road t's line, unit normal n_t)
+             + sum_t |b_t+1 - phi_t b_t|^2 / q_t + |b_0|^2 / sigma_b^2 + o^2 / sigma_o^2
 
     q_t = rate^2 dt_t,  phi_t = exp(-dt_t / tau)          (a random walk slowly returning to 0)
     w_t = 1 / (h_t^2 / 3 + SIGMA_LINE_M^2)                (the carriageway's spread across, half width h_t)
+    s_t = n_t . r_t                                       (r_t: unit vector right of the body's heading)
 
-with Cauchy weights ``w_t / (1 + (r_t / (3 sqrt(1/w_t)))^2)`` on the residuals ``r_t`` of
-the previous estimate after the first pass (a wrong edge at a junction pulls little), and
-no road term where the decoding chose the off-road state. ``rate`` = 0.5 m/sqrt(s) (a GNSS
-fix's multipath error wanders by metres over tens of seconds), ``tau`` = 600 s, ``sigma_b``
-per run as ``sigma_d`` (clipped to [``SIGMA_B_MIN_M``, ``SIGMA_B_MAX_M``]). The system is
-block tridiagonal: a banded Cholesky solve, and on the last pass a Kalman filter and
-Rauch-Tung-Striebel smoother, which give the same mean and each ``b_t``'s covariance
-``P_t``. ``PASSES`` rounds: decode at ``p + b``, estimate ``b``. The suggestion is
-``p_t + b_t``: the run's own shape moved by a smooth bias, not snapped to the centreline,
-so a lane offset, a lane change or a corner cut stays as driven. Its ``sigma_m`` is
-``sqrt(lambda_max(P_t) + s_t)``, ``s_t`` the mean squared distance of the decoding's
-max-marginal posterior (min-sum forward + backward) from the chosen state.
+The offset turns with the car and a bias does not, which tells them apart wherever the run
+turns or drives a road both ways. After the first pass, Cauchy weights
+``w_t / (1 + (r_t / (3 sqrt(1/w_t)))^2)`` on the previous estimate's residuals ``r_t`` (a
+wrong edge at a junction pulls little); no road term where the decoding chose the off-road
+state. ``rate`` = 0.5 m/sqrt(s) (a fix's multipath error wanders by metres over tens of
+seconds), ``tau`` = 600 s, ``sigma_b`` per run as ``sigma_d`` (within [``SIGMA_B_MIN_M``,
+``SIGMA_B_MAX_M``]), ``sigma_o`` = 1.75 m (half a 3.5 m lane); rate, tau, sigma_o and
+``PASSES`` were chosen among a few values on the tuned drives of ``benchmarks.roads``. The system in ``b`` is block
+tridiagonal and ``o`` couples every row: a banded Cholesky solve with two right-hand sides
+and ``o`` by its Schur complement; on the last pass a Kalman filter and Rauch-Tung-Striebel
+smoother give the same ``b`` (given ``o``) and each ``b_t``'s covariance ``P_t``.
+``PASSES`` rounds: decode at ``p + b``, estimate ``b`` and ``o``. The suggestion is
+``p_t + b_t``: the run's own shape moved by a smooth bias, not snapped to the centreline, so
+the lane, a lane change or a corner cut stays as driven. Its ``sigma_m`` is
+``sqrt(lambda_max(P_t + s_t^2 var(o) n_t n_t^T) + m_t)``, ``var(o)`` the inverse of the
+Schur complement and ``m_t`` the mean squared distance of the decoding's max-marginal
+posterior (min-sum forward + backward) from the chosen state.
 
 ``off_road`` flags a reported position outside the carriageway of its nearest road (its
 distance above that road's half width), the drivable-area version's meaning.
@@ -68,7 +76,6 @@ K = 8
 SIGMA_D_MIN_M, SIGMA_D_MAX_M = 2.0, 20.0
 SIGMA_H_RAD = np.deg2rad(20.0)
 SIGMA_S_M = 1.5
-OFF_ROAD_Z = 3.0
 OFF_ROAD_COST = 50.0  # 10 sigma_d: only where no road is within the search radius, in practice
 MOVING_M = 1.0
 PASSES = 3
@@ -76,6 +83,7 @@ TAU_S = 600.0
 RATE_M_PER_SQRT_S = 0.5
 SIGMA_B_MIN_M, SIGMA_B_MAX_M = 1.0, 30.0
 SIGMA_LINE_M = 0.5
+SIGMA_LANE_M = 1.75
 ROBUST_C = 3.0
 
 
@@ -139,11 +147,12 @@ def viterbi(unary: np.ndarray, pos: np.ndarray, step: np.ndarray, sigma_s: float
 
 
 def match_xy(net: RoadNetwork, p: np.ndarray, heading: np.ndarray, dt_s: np.ndarray | float = 1.0,
-             passes: int = PASSES, rate: float = RATE_M_PER_SQRT_S, tau_s: float = TAU_S, min_near_share: float = 0.0):
+             passes: int = PASSES, rate: float = RATE_M_PER_SQRT_S, tau_s: float = TAU_S, min_near_share: float = 0.0,
+             sigma_lane: float | None = None):
     """Match points ``p`` (n, 2) in ``net``'s frame with body headings (n,) rad CCW from east.
 
     ``dt_s``: time between consecutive keyframes (scalar or (n-1,)). Returns (matched (n, 2),
-    off_road (n,), sigma_m (n,), sigma_d); see the module docstring.
+    off_road (n,), sigma_m (n,), sigma_d, lane offset m right of travel); see the module docstring.
     """
     n = len(p)
     dt = np.broadcast_to(np.asarray(dt_s, dtype=float), (n - 1,))
@@ -154,14 +163,17 @@ def match_xy(net: RoadNetwork, p: np.ndarray, heading: np.ndarray, dt_s: np.ndar
         raise FewRoadsNear(f"{int(has0.sum())} of {n} keyframes have a road within {RADIUS_M:.0f} m")
     # the bias's spread, per run: the reported positions' spread across their roads
     sigma_b = float(np.clip(1.4826 * np.median(dist0[has0, 0]), SIGMA_B_MIN_M, SIGMA_B_MAX_M)) if has0.any() else SIGMA_B_MAX_M
+    sigma_lane = SIGMA_LANE_M if sigma_lane is None else sigma_lane
     bias = np.zeros_like(p)
+    offset = 0.0
     for k in range(passes):
         near = near0 if k == 0 else candidates(net, p + bias)
         last = k == passes - 1
         state, matched, on_road, spread, sigma_d = _viterbi_pass(near, p + bias, heading, last)
         cand, dist, head, ids = near
         seg = np.where(on_road, ids[np.arange(n), np.minimum(state, K - 1)], -1)
-        bias, cov = _smooth_bias(net, p, bias, matched, seg, dt, sigma_b, tau_s, rate, robust=k > 0, covariance=last)
+        bias, cov, offset = _smooth_bias(net, p, bias, offset, matched, seg, heading, dt, sigma_b, tau_s, rate,
+                                         robust=k > 0, covariance=last, sigma_o=sigma_lane)
     out = p + bias
     half = net.half_width_m[np.where(has0, ids0[:, 0], 0)]
     off_road = ~has0 | (dist0[:, 0] > half)
@@ -169,29 +181,31 @@ def match_xy(net: RoadNetwork, p: np.ndarray, heading: np.ndarray, dt_s: np.ndar
     tr, det = cov[:, 0] + cov[:, 2], cov[:, 0] * cov[:, 2] - cov[:, 1] ** 2
     major = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
     sigma = np.sqrt(major + spread)
-    return out, off_road, sigma, sigma_d
+    return out, off_road, sigma, sigma_d, offset
 
 
-def _smooth_bias(net: RoadNetwork, p, bias, matched, seg, dt, sigma_b, tau, rate, robust: bool, covariance: bool):
-    """The smooth bias b_t (n, 2) minimising the module docstring's least squares."""
+def _smooth_bias(net: RoadNetwork, p, bias, offset, matched, seg, heading, dt, sigma_b, tau, rate, robust: bool,
+                 covariance: bool, sigma_o: float = SIGMA_LANE_M):
+    """The smooth bias b_t (n, 2) and the lane offset o (m, right of travel) minimising the
+    module docstring's least squares; with ``covariance`` also each b_t's (n, 3) xx, xy, yy."""
     n = len(p)
     on = seg >= 0
     s = np.maximum(seg, 0)
     ab = net.b_xy[s] - net.a_xy[s]
     nrm = np.column_stack([-ab[:, 1], ab[:, 0]]) / np.linalg.norm(ab, axis=1, keepdims=True)
+    side = nrm[:, 0] * np.sin(heading) - nrm[:, 1] * np.cos(heading)  # n . (right of travel): +-1 along, 0 across
     z = np.einsum("ij,ij->i", nrm, matched - p)  # n . (c - p): the bias across the road
     var = net.half_width_m[s] ** 2 / 3.0 + SIGMA_LINE_M**2
     if robust:
-        r = np.einsum("ij,ij->i", nrm, p + bias - matched)
+        r = np.einsum("ij,ij->i", nrm, p + bias - matched) - side * offset
         var = var * (1.0 + (r / (ROBUST_C * np.sqrt(var))) ** 2)  # Cauchy weights
     w = np.where(on, 1.0 / var, 0.0)
     phi = np.exp(-dt / tau)
     q = rate**2 * dt
-    if covariance:
-        return _rts(z, nrm, np.where(on, var, np.inf), phi, q, sigma_b)
     from scipy.linalg import solveh_banded
 
-    # information matrix, unknowns interleaved (x0, y0, x1, y1, ...), upper band form
+    # information matrix of b, unknowns interleaved (x0, y0, x1, y1, ...), upper band form;
+    # the offset o couples every row (an arrow matrix): eliminated by its Schur complement
     dx = np.zeros(n)
     dx[0] += 1.0 / sigma_b**2
     dx[1:] += 1.0 / q
@@ -202,10 +216,19 @@ def _smooth_bias(net: RoadNetwork, p, bias, matched, seg, dt, sigma_b, tau, rate
     band[2, 0::2], band[2, 1::2] = dx, dy
     band[1, 1::2] = w * nrm[:, 0] * nrm[:, 1]
     band[0, 2::2] = band[0, 3::2] = -phi / q
-    rhs = np.empty(2 * n)
-    rhs[0::2], rhs[1::2] = w * z * nrm[:, 0], w * z * nrm[:, 1]
-    b = solveh_banded(band, rhs, lower=False, check_finite=False)
-    return b.reshape(n, 2), None
+    rhs = np.empty((2 * n, 2))
+    rhs[0::2, 0], rhs[1::2, 0] = w * z * nrm[:, 0], w * z * nrm[:, 1]
+    rhs[0::2, 1], rhs[1::2, 1] = -w * side * nrm[:, 0], -w * side * nrm[:, 1]  # u: the o column
+    x = solveh_banded(band, rhs, lower=False, check_finite=False)
+    u = rhs[:, 1]
+    schur = np.sum(w * side**2) + 1.0 / sigma_o**2 - u @ x[:, 1]  # o's posterior information
+    offset = float((-np.sum(w * side * z) - u @ x[:, 0]) / schur)
+    if covariance:  # b given o, with its covariance, and o's own doubt across each road
+        b, cov = _rts(z + side * offset, nrm, np.where(on, var, np.inf), phi, q, sigma_b)
+        cross = np.where(on, side**2 / schur, 0.0)
+        cov = cov + cross[:, None] * np.column_stack([nrm[:, 0] ** 2, nrm[:, 0] * nrm[:, 1], nrm[:, 1] ** 2])
+        return b, cov, offset
+    return (x[:, 0] - x[:, 1] * offset).reshape(n, 2), None, offset
 
 
 def _rts(z, nrm, var, phi, q, sigma_b):
@@ -327,7 +350,7 @@ def match_on_roads(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz:
         raise ValueError(f"{osm_path}:0: field highway: no drive ways within {margin_m} m of the run") from None
     p = net.georef.to_xy(ll)
     heading = heading_from_quaternion_wxyz(np.asarray(q_body_to_enu_wxyz, dtype=float)[idx])
-    matched, off_road, sigma, _ = match_xy(net, p, heading, dt_s=dt_s, min_near_share=min_near_share)
+    matched, off_road, sigma, _, _ = match_xy(net, p, heading, dt_s=dt_s, min_near_share=min_near_share)
     return Suggestions(index=idx, lonlat_deg=net.georef.to_lonlat(matched),
                        moved_m=np.linalg.norm(matched - p, axis=1), off_road=off_road, sigma_m=sigma,
                        n_vertices=net.n_segments, matcher="roads")
