@@ -223,31 +223,11 @@ def position_term_costs(terms: T.Terms, p_m: np.ndarray) -> dict[str, float]:
             "user": 0.5 * float(np.einsum("ij,ij->", user_r, user_r))}
 
 
-@functools.lru_cache(maxsize=8)
-def _band_index(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Where the upper triangles of D blocks and all of U blocks go in the (12, 6k) band."""
-    a, b = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
-    upper = a <= b
-    ia, ib = a[upper], b[upper]
-    blk = np.arange(k)[:, None]
-    d_rows = np.broadcast_to(BAND_U + ia - ib, (k, ia.size))
-    d_cols = 6 * blk + ib
-    ua, ub = a.ravel(), b.ravel()
-    blk_u = np.arange(max(k - 1, 0))[:, None]
-    u_rows = np.broadcast_to(BAND_U + ua - 6 - ub, (max(k - 1, 0), ua.size))
-    u_cols = 6 * (blk_u + 1) + ub
-    return (d_rows, d_cols, ia, ib), (u_rows, u_cols)
-
-
 def pack_banded(D: np.ndarray, U: np.ndarray, damping: np.ndarray | float = 0.0) -> np.ndarray:
     """Symmetric block-tridiagonal matrix -> LAPACK upper band (12, 6k); adds damping to the diagonal."""
-    k = len(D)
-    (d_rows, d_cols, ia, ib), (u_rows, u_cols) = _band_index(k)
-    ab = np.zeros((BAND_U + 1, 6 * k))
-    ab[d_rows, d_cols] = D[:, ia, ib]
-    if k > 1:
-        ab[u_rows, u_cols] = U.reshape(k - 1, 36)
-    ab[BAND_U] += damping
+    ab = banded.pack_upper(np.asarray(D, dtype=float), np.asarray(U, dtype=float))  # Fortran order
+    if np.any(damping):
+        ab[BAND_U] += damping
     return ab
 
 
