@@ -190,6 +190,9 @@ def test_fingerprint_file_keeps_the_calibration(tmp_path):
     np.savez_compressed(tmp_path / "bad.npz", **old, f3_robust=np.array(2, dtype=np.int8))
     with pytest.raises(ValueError, match="field f3_robust"):
         load_fingerprints(tmp_path / "bad.npz")
+    np.savez_compressed(tmp_path / "bad.npz", **{**old, "outlier_frac": np.array(1.5)})
+    with pytest.raises(ValueError, match="field outlier_frac: must be a number in"):
+        load_fingerprints(tmp_path / "bad.npz")
 
 
 def test_a_scan_gives_at_most_one_peak_the_strongest():

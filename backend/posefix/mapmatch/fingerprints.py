@@ -572,6 +572,8 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
         table: dict = {}
         scale = float(z["cov_scale"]) if "cov_scale" in z.files else 1.0
         eps = float(z["outlier_frac"]) if "outlier_frac" in z.files else 0.0
+        if not (np.isfinite(eps) and 0.0 <= eps < 1.0):  # f3's heavy tail: log(ε/V) needs ε in (0, 1)
+            raise ValueError(f"{path}:0: field outlier_frac: must be a number in [0, 1), got {eps}")
         # Files written before f4's calibration (or whose σ could not be calibrated) have no
         # peak_sigma_m: f4 is left out for them (UNCALIBRATED_PEAK_SIGMA), not given 3 m.
         if "peak_sigma_m" in z.files:
