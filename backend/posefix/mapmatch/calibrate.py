@@ -28,12 +28,14 @@ import numpy as np
 
 __all__ = ["estimate_step_correction", "apply_step_correction"]
 
-# Prior σ of a around 1: heading ±0.05 rad (2.9°). The floor's heading bias is learned on its
-# survey walks (train_model), so a walk differs from it only by how its phone sits in the hand
-# and the magnetic field along its route: a few degrees. (0.10 let a walk's own posterior,
-# which the offset itself shapes, pull it 17° off: on site1/F1's tuning walks, known start,
-# 0.10 gave 1.41 / 2.82 m and 2σ coverage 78 %, 0.05 1.30 / 2.55 m and 83 %, none 1.32 / 2.88
-# and 86 %. The step-length part of a, applied too, gave 1.35 / 2.62 m and 80 %: not applied.)
+# Prior σ of a around 1 when the walk's heading spread is not given (track_walk with an unknown
+# start): heading ±0.05 rad (2.9°). With a known start track_walk passes the model's measured
+# spread of the walks' own offsets (learn.learn_walk_spread: 10.1° on site1/F1, 7.4° on
+# site2/F2), which it also marginalises: on the held-out walks, known start, mean / p95 went
+# 1.72 / 4.15 -> 1.70 / 4.01 m (site1) and 1.30 / 3.22 -> 1.28 / 2.83 m (site2), crosswise
+# 1.66 / 4.30 -> 1.60 / 3.79 and 1.25 / 3.49 -> 1.17 / 3.06 m; on site1's tuning walks
+# 1.31 / 2.55 -> 1.41 / 3.01 m (a walk's own posterior, which the offset shapes, can pull it
+# off). The step-length part of a, applied too, gave 1.35 / 2.62 m on those: not applied.
 SIGMA_A = 0.05
 
 

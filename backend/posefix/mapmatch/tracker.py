@@ -357,12 +357,13 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     The live positions and the online time are the first pass's (a live session cannot
     know the whole walk).
     ``walk_spread`` (with ``"mean"``): σ of the walk's own heading offset (rad) and step-length
-    scale (log) left after that, ``(heading_sd_rad, scale_sd)``, marginalised
-    (:func:`_marginalise_walk`); None = the model's (``walk_heading_sd_rad``, ``walk_scale_sd``)
-    with a known start, (0, 0) (off) with an unknown one, where the place dominates the
-    uncertainty and every vertex is live (each quadrature node is a whole pass).
+    scale (log), ``(heading_sd_rad, scale_sd)``: the heading's is the EM's prior, and both are
+    marginalised about the calibrated walk (:func:`_marginalise_walk`); None = the model's
+    (``walk_heading_sd_rad``, ``walk_scale_sd``) with a known start, (0, 0) with an unknown one
+    (EM prior :data:`posefix.mapmatch.calibrate.SIGMA_A`, nothing marginalised: the place
+    dominates that uncertainty, and every node would be a whole pass over every vertex).
     """
-    from posefix.mapmatch.calibrate import apply_step_correction, estimate_step_correction
+    from posefix.mapmatch.calibrate import SIGMA_A, apply_step_correction, estimate_step_correction
     from posefix.mapmatch.sensors import steps_from_walk
 
     if estimate not in ("mean", "viterbi"):
@@ -372,18 +373,22 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     obs = _walk_observations(model, walk, steps, start_xy_m, fingerprints)
     first = _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s)
     res, a, extra_s = first, 1.0 + 0j, 0.0
+    if walk_spread is None:
+        walk_spread = (model.walk_heading_sd_rad, model.walk_scale_sd) if start_xy_m is not None else (0.0, 0.0)
+    sd = np.asarray(walk_spread, dtype=float)
+    # The offset's prior is the spread it is marginalised with: EM finds the walk's own offset,
+    # the quadrature spreads around it.
+    sigma_a = float(sd[0]) if sd[0] > 0.0 else SIGMA_A
     if self_calibrate and estimate == "mean" and len(steps) >= 8:
         for _ in range(em_iterations):
-            a_new = estimate_step_correction(vec, res.p_xy_m, res.converged, model.graph.cell_m, model.sigmas.len_m)
+            a_new = estimate_step_correction(vec, res.p_xy_m, res.converged, model.graph.cell_m, model.sigmas.len_m,
+                                             sigma_a=sigma_a)
             if abs(a_new - a) < 0.005:
                 break
             a = a_new / abs(a_new) if heading_only else a_new
             res = _track_pass(model, walk, steps, apply_step_correction(vec, a), obs, start_xy_m, estimate, None,
                               wifi_corr_s)
             extra_s += res.offline_time_per_step_s
-    if walk_spread is None:
-        walk_spread = (model.walk_heading_sd_rad, model.walk_scale_sd) if start_xy_m is not None else (0.0, 0.0)
-    sd = np.asarray(walk_spread, dtype=float)
     if estimate == "mean" and np.any(sd > 0.0) and len(steps) >= 2:
         runs = []
         for dh, dk, _ in WALK_NODES:
