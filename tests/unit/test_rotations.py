@@ -64,3 +64,12 @@ def test_slerp_endpoints_midpoint_and_yaw():
     assert np.allclose(rot.slerp_quat(a, b, np.array([0.0])), a)
     assert np.allclose(rot.slerp_quat(a, b, np.array([1.0])), b)
     assert np.allclose(rot.yaw_rad(rot.slerp_quat(a, b, np.array([0.5]))), 0.6)
+
+
+def test_jacobian_inverses_at_once_equal_each_alone():
+    rng = np.random.default_rng(5)
+    phi = np.concatenate([rng.standard_normal((200, 3)) * 10.0 ** rng.integers(-8, 1, (200, 1)), np.zeros((2, 3))])
+    jr_inv, jl_inv = rot.jacobian_inverses(phi)
+    assert np.array_equal(jr_inv, rot.right_jacobian_inverse(phi))
+    assert np.array_equal(jl_inv, rot.left_jacobian_inverse(phi))
+    assert np.allclose(jr_inv @ rot.right_jacobian(phi), np.eye(3), atol=1e-9)

@@ -179,6 +179,20 @@ def left_jacobian_inverse(phi_rad: np.ndarray) -> np.ndarray:
     return right_jacobian_inverse(-np.asarray(phi_rad, dtype=float))
 
 
+def jacobian_inverses(phi_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Jr^-1(phi), Jl^-1(phi)) at once: [-phi]x = -[phi]x and its square is the same, so the
+    two share every term (the same values as the two functions above)."""
+    phi = np.asarray(phi_rad, dtype=float)
+    theta = np.linalg.norm(phi, axis=-1)
+    small = theta < 1e-3
+    t = np.where(small, 1.0, theta)
+    c = np.where(small, 1.0 / 12.0 + theta * theta / 720.0, 1.0 / (t * t) - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)))
+    K = skew(phi)
+    common = np.eye(3) + c[..., None, None] * (K @ K)
+    half = 0.5 * K
+    return common + half, common - half
+
+
 def rotate(q_wxyz: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors v (n, 3) by quaternions (n, 4) without building matrices.
 

@@ -448,13 +448,14 @@ def add_jacobians(terms: Terms, ev: Evaluation, location: bool = True) -> Evalua
     user_J = np.zeros((len(ev.user_r), 3, 3))
     user_J[:, [0, 1, 2], [0, 1, 2]] = terms.user_w
     dRt = np.swapaxes(terms.rel_dR, 1, 2)
+    Jr_inv, Jl_inv = rot.jacobian_inverses(c["phi"])
     ev.jac = {
         "user_p": user_J,
         "rt_pi": -RiT,
         "rt_pj": RiT,
         "rt_ti": rot.skew(c["b"]) @ Jr[:-1] * wt,
-        "rr_ti": -(rot.left_jacobian_inverse(c["phi"]) @ dRt @ Jr[:-1]) * wr,
-        "rr_tj": (rot.right_jacobian_inverse(c["phi"]) @ Jr[1:]) * wr,
+        "rr_ti": -(Jl_inv @ dRt @ Jr[:-1]) * wr,
+        "rr_tj": (Jr_inv @ Jr[1:]) * wr,
         "g_t": rot.skew(c["zb"]) @ Jr * terms.grav_w[:, None, None],
     }
     if location:
