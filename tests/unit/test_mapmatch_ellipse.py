@@ -50,7 +50,7 @@ def test_the_ellipse_is_the_mixtures_mean_squared_error_about_the_centre():
     assert mix.modes == a.modes
 
 
-def test_marginalising_widens_the_ellipses_keeps_the_positions_and_is_off_without_a_start():
+def test_marginalising_widens_the_ellipses_keeps_the_positions_with_or_without_a_start():
     model = build_model(FLOOR)
     walk = read_walk(sorted((FLOOR / "walks").glob("*.txt"))[0])
     start = tuple(walk.waypoints[0, 1:3])
@@ -64,10 +64,12 @@ def test_marginalising_widens_the_ellipses_keeps_the_positions_and_is_off_withou
     m2_fixed = mahalanobis2_at_waypoints(walk.waypoints, fixed, skip_first=True)
     m2_mixed = mahalanobis2_at_waypoints(walk.waypoints, mixed, skip_first=True)
     assert np.median(m2_mixed) < np.median(m2_fixed)
-    # Unknown start: off (every node would be a whole pass over every vertex).
+    # Unknown start: the same marginalisation (a converged place is then as uncertain as the
+    # walk's heading and stride), the positions, modes and converged flags the central run's.
     unknown = track_walk(model, walk, start_xy_m=None)
-    assert np.allclose(unknown.sigma_major_m,
-                       track_walk(model, walk, start_xy_m=None, walk_spread=(0.0, 0.0)).sigma_major_m)
+    plain = track_walk(model, walk, start_xy_m=None, walk_spread=(0.0, 0.0))
+    assert np.allclose(unknown.p_xy_m, plain.p_xy_m) and np.array_equal(unknown.converged, plain.converged)
+    assert not np.allclose(unknown.sigma_major_m, plain.sigma_major_m)  # marginalised, not off
 
 
 def test_walk_spread_is_the_rms_of_each_walks_offset_and_log_scale():
