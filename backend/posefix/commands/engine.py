@@ -78,9 +78,10 @@ class _Steps:
 def _preload_engine():
     """Import the engine in a background thread while the main thread parses input.
 
-    The CSV parser runs in C++ without the GIL, so importing the engine (scipy) alongside
-    it overlaps most of that import on a multi-core machine. A failure is left for the
-    main thread's own import to raise.
+    A large file's CSV parser runs in C++ without the GIL, so importing the engine's modules
+    alongside it overlaps that import on a multi-core machine (a small file is parsed in
+    Python: then the two take turns). A failure is left for the main thread's own import to
+    raise.
     """
     import threading
 
