@@ -24,6 +24,10 @@ runs, per seed and over the tuned and the held-out seeds apart. Also: adversaria
 submissions that carry weight in a merged revision, and conflict flags on runs whose every
 operator is within the requirement.
 
+Every request is tried again when a loaded server drops the connection (``call``); one that
+changes state is first looked up (the lease held, the assignment's status, the gold run), so
+a request that took effect before the drop is not repeated.
+
 Targets (issue 13, held-out seeds): A: merged never worse than input, mean <= 1.2 x best
 single; B: mean <= 0.9 x best single; no adversarial work in a merge; flags on < 10 % of
 all-within-requirement runs.
@@ -54,6 +58,43 @@ CARELESS, ADVERSARY = "careless", "adversary"
 REQUIREMENT_M = 3.0
 R_EARTH = 6371008.8
 PASSWORD = "crowd-bench-pw-1"
+RETRIES = 4  # a loaded server may drop a connection; a request is tried this many more times
+
+
+def call(client: httpx.Client, method: str, url: str, *, settled: Any = None, **kw: Any) -> httpx.Response:
+    """One request, tried again when the connection drops (httpx.TransportError), after 1, 2,
+    4, 8 s. A request that changes state may have taken effect before the drop: ``settled()``
+    looks first and returns the response that stands in for the lost one (None: it did not
+    take effect, send it again)."""
+    for attempt in range(RETRIES + 1):
+        try:
+            return client.request(method, url, **kw)
+        except httpx.TransportError as e:
+            if attempt == RETRIES:
+                raise RuntimeError(f"{method} {url}: the connection dropped {RETRIES + 1} times ({e!r})") from e
+            print(f"  {method} {url}: connection dropped ({type(e).__name__}); trying again", file=sys.stderr)
+            time.sleep(2.0 ** attempt)
+            if settled is not None:
+                got = settled()
+                if got is not None:
+                    return got
+    raise AssertionError("unreachable")
+
+
+def _held_lease(client: httpx.Client) -> httpx.Response | None:
+    """After a dropped ``POST /tasks/next``: the lease it took, if it took one (what a browser
+    shows on reload: the work you hold)."""
+    held = call(client, "GET", "/api/v1/assignments/mine", params={"status": "accepted"})
+    held.raise_for_status()
+    rows = held.json()
+    return httpx.Response(200, json={"assignment": rows[0], "message": "held"}, request=held.request) if rows else None
+
+
+def _decided(client: httpx.Client, assignment_id: int, pending: str) -> httpx.Response | None:
+    """After a dropped submit or review: done when the assignment is no longer ``pending``."""
+    r = call(client, "GET", f"/api/v1/assignments/{assignment_id}")
+    r.raise_for_status()
+    return r if r.json()["status"] != pending else None
 
 
 @dataclass
@@ -151,16 +192,24 @@ def _upload(inst: Instance, name: str, run: Any) -> int:
     path = inst.root / f"{name}.csv"
     write_run(run, path)
     with path.open("rb") as fh:
-        r = inst.admin.post("/api/v1/runs", data={"name": name}, files={"file": (path.name, fh, "text/csv")})
+        body = fh.read()
+    # a repeated upload after a drop at worst leaves an unused copy of the run
+    r = call(inst.admin, "POST", "/api/v1/runs", data={"name": name}, files={"file": (path.name, body, "text/csv")})
     r.raise_for_status()
     return int(r.json()["id"])
 
 
 def _keyframes(client: httpx.Client, run_id: int, revision: int | None = None) -> list[dict[str, Any]]:
     params = {} if revision is None else {"revision": revision}
-    r = client.get(f"/api/v1/runs/{run_id}/keyframes", params=params)
+    r = call(client, "GET", f"/api/v1/runs/{run_id}/keyframes", params=params)
     r.raise_for_status()
     return r.json()["features"]
+
+
+def _get(client: httpx.Client, url: str) -> Any:
+    r = call(client, "GET", url)
+    r.raise_for_status()
+    return r.json()
 
 
 def _truth_at(sim: Any, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -206,7 +255,7 @@ def _wait(cond: Any, timeout_s: float = 300.0, every_s: float = 0.3) -> Any:
 
 def _settled(inst: Instance, task_id: int) -> bool:
     """Nothing is waiting for the worker: no run is open with all its work submitted."""
-    t = inst.admin.get(f"/api/v1/tasks/{task_id}").json()
+    t = _get(inst.admin, f"/api/v1/tasks/{task_id}")
     for r in t["runs"]:
         c = r["counts"]
         if r["status"] == "open" and not c.get("open") and not c.get("accepted"):
@@ -218,13 +267,14 @@ def _settled(inst: Instance, task_id: int) -> bool:
 
 def _work(inst: Instance, op: Operator, sims: dict[int, Any], rng: np.random.Generator) -> dict[str, Any] | None:
     assert op.client is not None
-    r = op.client.post("/api/v1/tasks/next")
+    r = call(op.client, "POST", "/api/v1/tasks/next", settled=lambda: _held_lease(op.client))
     r.raise_for_status()
     a = r.json()["assignment"]
     if a is None:
         return None
     feats = _keyframes(op.client, a["run_id"])
-    r = op.client.post(f"/api/v1/assignments/{a['id']}/submit", json={"moves": _moves(op, feats, sims[a["run_id"]], rng)})
+    r = call(op.client, "POST", f"/api/v1/assignments/{a['id']}/submit", json={"moves": _moves(op, feats, sims[a["run_id"]], rng)},
+             settled=lambda: _decided(op.client, a["id"], "accepted"))
     r.raise_for_status()
     return a
 
@@ -232,18 +282,19 @@ def _work(inst: Instance, op: Operator, sims: dict[int, Any], rng: np.random.Gen
 def _review(inst: Instance) -> int:
     """The scripted reviewer: what the screen marks off the consensus is rejected, the rest approved."""
     n = 0
-    for item in inst.reviewer.get("/api/v1/review/queue").json():
+    for item in _get(inst.reviewer, "/api/v1/review/queue"):
         if item["status"] == "open":  # the run's consensus is not in yet
             continue
-        view = inst.reviewer.get(f"/api/v1/task-runs/{item['task_run_id']}/review").json()
+        view = _get(inst.reviewer, f"/api/v1/task-runs/{item['task_run_id']}/review")
         for s in view["submissions"]:
             if s["status"] != "submitted":
                 continue
             off = s["off_consensus"] or (s["distance_m"] is not None and s["expected_m"] is not None
                                          and s["distance_m"] > 3 * s["expected_m"])
-            r = inst.reviewer.post(f"/api/v1/assignments/{s['assignment_id']}/review",
-                                   json={"decision": "reject" if off else "approve",
-                                         "feedback": "off the weighted consensus" if off else "consistent"})
+            r = call(inst.reviewer, "POST", f"/api/v1/assignments/{s['assignment_id']}/review",
+                     json={"decision": "reject" if off else "approve",
+                           "feedback": "off the weighted consensus" if off else "consistent"},
+                     settled=lambda: _decided(inst.reviewer, s["assignment_id"], "submitted"))
             if r.status_code == 200:
                 n += 1
     return n
@@ -255,7 +306,8 @@ def crowd_task(inst: Instance, seed: int, crowd: str, ops: list[Operator], sims:
                             "lease_s": 600, "lifetime_s": 3600, "auto_approval_delay_s": 2}
     if requirement:
         body["requirements"] = [{"qualification": "accuracy_m", "comparator": "le", "value": REQUIREMENT_M}]
-    task = inst.admin.post("/api/v1/tasks", json=body)
+    body["client_token"] = f"crowd-{crowd}-{seed}"  # a repeat after a drop is the same task
+    task = call(inst.admin, "POST", "/api/v1/tasks", json=body)
     task.raise_for_status()
     task_id = task.json()["id"]
     who: dict[int, str] = {}
@@ -269,19 +321,19 @@ def crowd_task(inst: Instance, seed: int, crowd: str, ops: list[Operator], sims:
                 who[a["id"]] = ops[i].name
                 if a["task_id"] != task_id:  # a gold run: its score comes before the operator asks again
                     gold.append(a["id"])
-        _wait(lambda: all(inst.admin.get(f"/api/v1/assignments/{g}").json()["status"] != "submitted" for g in gold))
+        _wait(lambda: all(_get(inst.admin, f"/api/v1/assignments/{g}")["status"] != "submitted" for g in gold))
         _wait(lambda: _settled(inst, task_id))
         reviewed = _review(inst)
         if not progressed and not reviewed:
-            t = inst.admin.get(f"/api/v1/tasks/{task_id}").json()
+            t = _get(inst.admin, f"/api/v1/tasks/{task_id}")
             if all(r["status"] in ("merged", "unmerged") for r in t["runs"]):
                 break
             time.sleep(1.0)
     try:
         _wait(lambda: all(r["status"] in ("merged", "unmerged")
-                          for r in inst.admin.get(f"/api/v1/tasks/{task_id}").json()["runs"]), timeout_s=120)
+                          for r in _get(inst.admin, f"/api/v1/tasks/{task_id}")["runs"]), timeout_s=120)
     except TimeoutError:
-        t = inst.admin.get(f"/api/v1/tasks/{task_id}").json()
+        t = _get(inst.admin, f"/api/v1/tasks/{task_id}")
         raise TimeoutError(f"task {task_id} did not finish: " + "; ".join(
             f"run {r['run_id']} {r['status']} {r['counts']}" for r in t["runs"])) from None
     return _score(inst, seed, crowd, task_id, sims, who, {o.name: o for o in ops})
@@ -292,15 +344,15 @@ def _score(inst: Instance, seed: int, crowd: str, task_id: int, sims: dict[int, 
     from posefix.tasks.consensus import geometric_median
 
     out = []
-    t = inst.admin.get(f"/api/v1/tasks/{task_id}").json()
+    t = _get(inst.admin, f"/api/v1/tasks/{task_id}")
     for tr in t["runs"]:
-        view = inst.reviewer.get(f"/api/v1/task-runs/{tr['id']}/review").json()
+        view = _get(inst.reviewer, f"/api/v1/task-runs/{tr['id']}/review")
         feats = _keyframes(inst.admin, tr["run_id"], 0)
         tk = np.array([f["properties"]["t"] for f in feats])
         lon_t, lat_t = _truth_at(sims[tr["run_id"]], tk)
         inp = np.array([f["geometry"]["coordinates"][:2] for f in feats])
         if tr["merged_revision"] is not None:
-            _wait(lambda: inst.admin.get(f"/api/v1/runs/{tr['run_id']}").json().get("revision", 0) >= tr["merged_revision"], 120)
+            _wait(lambda: _get(inst.admin, f"/api/v1/runs/{tr['run_id']}").get("revision", 0) >= tr["merged_revision"], 120)
             merged = np.array([f["geometry"]["coordinates"][:2] for f in _keyframes(inst.admin, tr["run_id"], tr["merged_revision"])])
         else:
             merged = inp
@@ -341,8 +393,15 @@ def run_seed(seed: int, n_runs: int, duration_s: float) -> list[RunResult]:
             truth_path = Path(tmp) / "gold-truth.csv"
             write_run(gold_sim.truth, truth_path)
             with truth_path.open("rb") as fh:
-                inst.admin.post("/api/v1/gold-runs", data={"run_id": str(gold_id), "is_test": "true", "pass_error_m": "1000"},
-                                files={"truth": ("truth.csv", fh, "text/csv")}).raise_for_status()
+                truth = fh.read()
+
+            def made() -> httpx.Response | None:  # a repeat would add a second qualification test
+                r = call(inst.admin, "GET", "/api/v1/gold-runs")
+                r.raise_for_status()
+                return r if any(g["run_id"] == gold_id for g in r.json()) else None
+
+            call(inst.admin, "POST", "/api/v1/gold-runs", data={"run_id": str(gold_id), "is_test": "true", "pass_error_m": "1000"},
+                 files={"truth": ("truth.csv", truth, "text/csv")}, settled=made).raise_for_status()
             for c, crowd in enumerate(("A", "B")):
                 sims = {}
                 for i in range(n_runs):
