@@ -59,7 +59,8 @@ def test_an_adversary_cannot_move_the_consensus_nor_hide_from_the_test() -> None
     sig = np.array([0.5, 1.0, 2.0, 2.0, 4.0, 8.0, 1.0])   # the last one is adversarial, 30 m off
     runs, truths = _crowd(rng, 30, 3, 40, sig, offsets={6: 30.0})
     est = fusion.estimate(runs, np.full(len(sig), np.nan), np.zeros(len(sig)))
-    assert est.sigma_m[6] > 10 * est.sigma_m[1]
+    # its shape is as precise as its clicks; its steady offset is what gives it away
+    assert est.tau_m is not None and est.tau_m[6] > 10 * est.sigma_m[1] and np.all(est.tau_m[:6] < 1.0)
     for run, t, f in zip(runs, truths, est.fused):
         if 6 in run.op:
             assert np.max(np.linalg.norm(f.t_m - t, axis=1)) < 12.0
@@ -106,3 +107,48 @@ def test_a_steady_offset_is_off_even_for_an_operator_measured_as_inaccurate() ->
     sig = np.array([0.5, 18.0, 18.0])
     test = fusion.chi2_test(y, np.ones((3, k), bool), sig, sig, dof_ref=np.full(3, 200.0))
     assert test.p[0] > 1e-3
+
+
+def test_a_shifted_submission_still_tells_which_partner_is_accurate() -> None:
+    """Two weak operators (4 and 8 m) and an adversary 30 m off but precise: without steady
+    offsets in the model only the sum of the two weak ones' variances shows; with them the
+    adversary's shape separates the two, and the fusion of the weak pair leans on the 4 m one."""
+    rng = np.random.default_rng(17)
+    k = 40
+    t = rng.uniform(-500, 500, (k, 2))
+    x = np.stack([t + rng.normal(size=(k, 2)) * 4.0, t + rng.normal(size=(k, 2)) * 8.0,
+                  t + np.array([21.0, 21.0]) + rng.normal(size=(k, 2)) * 0.5])
+    run = fusion.RunObs(x, np.ones((3, k), bool), np.array([0, 1, 2]), np.array([True, True, False]))
+    est = fusion.estimate([run], np.full(3, np.nan), np.zeros(3))
+    assert est.tau_m is not None and est.tau_m[2] > 10.0
+    assert 2.5 < est.sigma_m[0] < 6.0 and est.sigma_m[1] > 1.5 * est.sigma_m[0]
+    f = fusion.fuse(x[:2], np.ones((2, k), bool), est.sigma_m[:2], tau_m=est.tau_m[:2])
+    assert f.w[0].sum() > 2.0 * f.w[1].sum()
+
+
+def test_the_level_comes_from_operators_steady_elsewhere() -> None:
+    """A run whose three submissions are each shifted from the others (a good operator, one
+    left on a biased input, an adversary): the run alone cannot say whose level is right; the
+    operators' other runs do, and the fused run sits on the good operator's level."""
+    rng = np.random.default_rng(19)
+    k = 40
+    ops = {"good": 0, "careless": 1, "adversary": 2, "a": 3, "b": 4}
+    sig = {0: 0.5, 3: 1.0, 4: 2.0}
+    runs, truths = [], []
+    for members in ([0, 1, 2], [0, 3, 4], [1, 3, 4], [2, 3, 4], [0, 3, 1]):
+        t = rng.uniform(-500, 500, (k, 2))
+        bias = rng.normal(0, 8.0, 2)
+        rows = []
+        for o in members:
+            if o == ops["careless"]:
+                rows.append(t + bias + rng.normal(size=(k, 2)) * 0.3)
+            elif o == ops["adversary"]:
+                ang = rng.uniform(0, 2 * np.pi)
+                rows.append(t + 30.0 * np.array([np.cos(ang), np.sin(ang)]) + rng.normal(size=(k, 2)) * 0.5)
+            else:
+                rows.append(t + rng.normal(size=(k, 2)) * sig[o])
+        runs.append(fusion.RunObs(np.stack(rows), np.ones((3, k), bool), np.array(members), np.ones(3, bool)))
+        truths.append(t)
+    est = fusion.estimate(runs, np.full(5, np.nan), np.zeros(5))
+    level = np.linalg.norm(np.mean(est.fused[0].t_m - truths[0], axis=0))
+    assert level < 1.0, (level, est.tau_m)

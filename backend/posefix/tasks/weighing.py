@@ -115,8 +115,10 @@ def _obs(session: Session, subs: list[Assignment], op_index: dict[int, int], con
 
 
 def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: set[int] | None = None) -> Weighing:
-    """Weigh ``subs`` (evaluated submissions of ``tr``); only ``contributors`` (default: all
-    not rejected) pull the fused positions."""
+    """Weigh ``subs`` (evaluated submissions of ``tr``); only ``contributors`` pull the fused
+    positions (default: all not rejected, less the work off the consensus, which waits for a
+    reviewer)."""
+    chosen = contributors is not None
     contributors = contributors if contributors is not None else {
         a.id for a in subs if a.status != AssignmentStatus.rejected}
     origin = run_origin(session, tr.run_id)
@@ -130,7 +132,9 @@ def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: s
     prior_n = np.array([fusion.GOLD_POSITIONS * gold[u][1] if u in gold else 0.0 for u in users])
     others = [o for rows in pool if (o := _obs(session, rows, op_index, {a.id for a in rows
                                                                        if a.status != AssignmentStatus.rejected}))]
-    here = _obs(session, subs, op_index, contributors, origin)
+    # in the EM only a reviewer's rejection counts work wholly against its operator; work left
+    # out of this merge (outweighed, or undecided) is still honest evidence of their accuracy
+    here = _obs(session, subs, op_index, {a.id for a in subs if a.status != AssignmentStatus.rejected}, origin)
     ops = np.array([op_index[a.operator_id or 0] for a in subs])
     truth = np.array([a.id in contributors for a in subs])
     # measured elsewhere: gold runs and the task's other shared runs, never this run itself
@@ -151,18 +155,41 @@ def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: s
     # reads an operator somewhat better than their clicks)
     s_ref = np.where(np.isnan(prior_s), np.nan, prior_s)
     d_ref = np.where(np.isnan(prior_s), TYPICAL_DOF, 2.0 * prior_n)
+    # how steady each operator is, measured elsewhere: a gold run's accuracy bounds its offsets
+    tau_ref = np.where(np.isnan(prior_s), np.nan, prior_s)
     if others:
         agree = fusion.estimate(others, np.full(len(users), np.nan), np.zeros(len(users)))
         enough = agree.n_positions >= MIN_POSITIONS
         s_ref = np.where(enough, agree.sigma_m, s_ref)
         d_ref = np.where(enough, 2.0 * agree.n_positions, d_ref)
+        if agree.tau_m is not None and agree.n_submissions is not None:
+            tau_ref = np.where(agree.n_submissions > 0, np.fmin(agree.tau_m, tau_ref), tau_ref)
     ref = s_ref[ops]
     # never measured: expected to be as good as the median measured operator (the median of
     # this run's own estimates only when nobody is measured: two bad of three would set it)
     typical = float(np.nanmedian(s_ref)) if np.any(~np.isnan(s_ref)) else float(np.median(full.sigma_m[ops]))
     ref = np.where(np.isnan(ref), typical, ref)
-    fused = fusion.fuse(x_m, valid & truth[:, None], full.sigma_m[ops])
-    test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, dof_ref=d_ref[ops], contributes=truth)
+    tau = full.tau_m[ops] if full.tau_m is not None else None
+    test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, dof_ref=d_ref[ops], contributes=truth, tau_fit_m=tau)
+    pull = truth if chosen or not np.any(truth & (test.p >= ALPHA)) else truth & (test.p >= ALPHA)
+    # the positions where the EM puts them; their uncertainty no smaller than what the
+    # operators' steadiness measured elsewhere allows (the merge guard reads it)
+    fused = fusion.fuse(x_m, valid & pull[:, None], full.sigma_m[ops], tau_m=tau)
+    sure = fusion.fuse(x_m, valid & pull[:, None], full.sigma_m[ops], tau_m=_merge_tau(tau_ref[ops], full.fused[-1], pull),
+                       t0_m=fused.t_m)
+    fused.sigma_m, fused.p_m2 = np.fmax(fused.sigma_m, sure.sigma_m), np.fmax(fused.p_m2, sure.p_m2)
     return Weighing([a.id for a in subs], origin, x_m, valid, moved, full.sigma_m[ops], ref, measured_ops[ops],
                     [gold.get(a.operator_id or 0, (None, 0))[0] for a in subs],
                     [gold.get(a.operator_id or 0, (None, 0))[1] for a in subs], fused, test, "weighted")
+
+
+def _merge_tau(tau_ref_m: np.ndarray, here: fusion.Fused, truth: np.ndarray) -> np.ndarray:
+    """(m,) steady-offset scales for the fused result's uncertainty: each operator's as measured elsewhere.
+    One never measured is as likely as any of the run's contributors to be the one off, so
+    theirs is the scatter of the contributors' levels in this run (per axis, at least
+    ``TAU0_M``): when the contributors disagree in level and nothing measured says who is
+    right, the fused level is that unsure, and the merge guard sees it."""
+    b = here.b_m if here.b_m is not None else np.zeros((len(truth), 2))
+    c = b[truth] if truth.any() else b
+    scatter = float(np.sqrt(np.mean(np.sum((c - c.mean(axis=0)) ** 2, axis=1)) / 2.0 * len(c) / max(len(c) - 1, 1)))
+    return np.where(np.isnan(tau_ref_m), max(scatter, fusion.TAU0_M), tau_ref_m)
