@@ -400,7 +400,7 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
                 continue
             turn = a * np.exp(dk * sd[1] + 1j * dh * sd[0])
             runs.append(_track_pass(model, walk, steps, apply_step_correction(vec, turn), obs, start_xy_m, estimate,
-                                    None, wifi_corr_s))
+                                    None, wifi_corr_s, light=True))
             extra_s += runs[-1].offline_time_per_step_s
         res = _marginalise_walk(runs, WALK_NODES[:, 2])
     return replace(res, online_xy_m=first.online_xy_m, dr_xy_m=first.dr_xy_m, time_per_step_s=first.time_per_step_s,
@@ -466,14 +466,18 @@ def walk_log_evidence(model, walk, steps, vec, obs, start_xy_m, wifi_corr_s=None
     return tr.log_evidence()
 
 
-def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s) -> TrackResult:
-    """One run of the tracker over a walk's step vectors ``vec`` (see :func:`track_walk`)."""
+def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s,
+                light: bool = False) -> TrackResult:
+    """One run of the tracker over a walk's step vectors ``vec`` (see :func:`track_walk`).
+    ``light`` (a quadrature node of :func:`_marginalise_walk`, which reads only the smoothed
+    positions and ellipses): no live filter, no per-step summaries, no modes (``modes`` empty,
+    ``online_xy_m`` the dead reckoning)."""
     import time
 
     wifi_at, peak_at, start_wifi, start_wifi_t, walk_corr = obs
     t0 = int(walk.acc[0, 0])
     tr = Tracker(model, start_xy_m=start_xy_m, t0_ms=t0, start_wifi=start_wifi, wifi_corr_s=wifi_corr_s,
-                 start_wifi_t_ms=start_wifi_t, wifi_walk_corr=walk_corr)
+                 start_wifi_t_ms=start_wifi_t, wifi_walk_corr=walk_corr, filtered=not light)
     pts = [tr.summary(tr.column())]
     online = [pts[0].mean_xy_m]
     cols = [np.exp(tr.column())] if estimate == "viterbi" else None
@@ -481,7 +485,10 @@ def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wif
     for i in range(len(steps)):
         wifi, wifi_t = wifi_at.get(i, (None, None))
         peak, peak_t = peak_at.get(i, (None, None))
-        tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi, peak=peak, wifi_t_ms=wifi_t, peak_t_ms=peak_t)
+        tp = tr.step(vec[i], int(steps.t_ms[i]), wifi=wifi, peak=peak, wifi_t_ms=wifi_t, peak_t_ms=peak_t,
+                     summarise=not light)
+        if light:
+            continue
         pts.append(tp.summary)
         online.append(tp.summary.mean_xy_m)
         if cols is not None:
@@ -491,13 +498,19 @@ def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wif
     path = tr.best_path()
     online_s = time.process_time() - tic
     p_out = tr.p_xy_m[path]
+    modes: list = []
     if estimate == "mean" and len(steps):
-        p_out, pts, modes = smooth(tr, with_modes=True)
+        if light:
+            p_out, pts = smooth(tr)
+        else:
+            p_out, pts, modes = smooth(tr, with_modes=True)
     if cols is not None or not len(steps):
         modes = [posterior_modes(tr.p_xy_m, c) for c in (cols or [np.exp(tr.column())])]
     total_s = time.process_time() - tic
     start = np.zeros(2) if start_xy_m is None else np.asarray(start_xy_m, dtype=float)
     dr = start + np.vstack([np.zeros((1, 2)), np.cumsum(vec, axis=0)])
+    if light:
+        online = dr
     n = max(len(steps), 1)
     return TrackResult(
         t_ms=np.asarray(tr.t_ms, dtype=np.int64),
