@@ -27,7 +27,7 @@ describe("export links", () => {
 describe("shortcut tables", () => {
   const doc = straightDoc();
   const withSuggestions = { conflict: null, mode: "browse" as const, selected: 3, doc,
-    suggestions: { kind: "ready" as const, revision: doc.revision, items: [], offRoad: 0, timeMs: 0, focus: null, skipped: new Set<number>(), shown: true } };
+    suggestions: { kind: "ready" as const, revision: doc.revision, items: [], offRoad: 0, timeMs: 0, matcher: "roads", focus: null, skipped: new Set<number>(), shown: true } };
   it("every editor command is listed, and every listed key does what the table says", () => {
     expect(new Set(EDITOR_SHORTCUTS.map((r) => r.command))).toEqual(new Set(EDITOR_COMMANDS));
     for (const row of EDITOR_SHORTCUTS) {
@@ -50,7 +50,7 @@ describe("suggestions: picking never accepts; accept and skip step through", () 
   const sug = (index: number, m: number): Suggestion => ({ index, lonlat: eastOf(doc.keyframes[index].lonlat, 0, m), moved_m: m, off_road: false, sigma_m: 1, adjustable: true });
   const items = [sug(2, 3), sug(6, 4), sug(10, 0.2), sug(14, 5)];
   const s0 = loadDoc(editorNew(), doc);
-  const ready = suggestionsReady({ revision: doc.revision, items, offRoad: 0, timeMs: 1 }, currentEdits(s0));
+  const ready = suggestionsReady({ revision: doc.revision, items, offRoad: 0, timeMs: 1, matcher: "roads" }, currentEdits(s0));
   it("focuses the first one to decide", () => {
     expect(ready.focus).toBe(2);
     expect(todo(ready, currentEdits(s0)).map((s) => s.index)).toEqual([2, 6, 14]);

@@ -80,6 +80,8 @@ describe("suggestion layer and parsing", () => {
     expect(() => suggestionsFrom({ items: [{ index: 0, lon: "x", lat: 1 }] })).toThrow(/no position/);
     const ok = suggestionsFrom({ revision: 2, off_road: 1, time_ms: 5, items: [{ index: 0, lon: 24.9, lat: 60.1, moved_m: 1, off_road: true, sigma_m: 2, adjustable: true }] });
     expect(ok.items[0]).toEqual({ index: 0, lonlat: [24.9, 60.1], moved_m: 1, off_road: true, sigma_m: 2, adjustable: true });
+    expect(ok.matcher).toBe("roads");
+    expect(suggestionsFrom({ matcher: "grid", items: [] }).matcher).toBe("grid");
   });
 });
 

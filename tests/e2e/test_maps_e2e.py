@@ -94,7 +94,7 @@ def test_editor_accept_a_suggestion_and_submit(server, context, run_id):
     page.get_by_test_id("suggestions").click()
     info = page.get_by_test_id("suggestions-info")
     page.wait_for_function("() => /suggestion/.test(document.querySelector('[data-testid=suggestions-info]').textContent)", timeout=30_000)
-    assert "off-road" in info.inner_text()
+    assert "off-road" in info.inner_text() and "road network" in info.inner_text()  # the editor asks for the road matcher
     accept_all = page.get_by_test_id("suggestions-accept-all")
     assert accept_all.is_visible()
 

@@ -181,7 +181,7 @@ export class SuggestionsPanel {
     this.fetchBtn.title = ready ? "Show or hide the suggestions on the map" : "Match the run to the street map and suggest positions";
     this.acceptAllBtn.disabled = left.length === 0;
     this.acceptAllBtn.textContent = `Accept all (${left.length})`;
-    this.info.textContent = ready ? `${plural(left.length, "suggestion")} to decide · ${plural(ready.offRoad, "off-road keyframe")}` : "";
+    this.info.textContent = ready ? `${plural(left.length, "suggestion")} to decide · ${plural(ready.offRoad, "off-road keyframe")} · ${ready.matcher === "grid" ? "drivable-area grid" : "road network"}` : "";
     this.error.textContent = cur.kind === "error" ? cur.message : "";
     this.error.className = `suggest-info ${cur.kind === "error" ? "error" : ""}`;
     this.listEl.hidden = !ready?.shown;

@@ -131,8 +131,8 @@ export function actionAcceptAllSuggestions(items: readonly Suggestion[]): EditAc
 }
 
 /** Server answer -> suggestions (validates the shape so a bad answer is an error, not a blank layer). */
-export function suggestionsFrom(body: unknown): { revision: number; items: Suggestion[]; offRoad: number; timeMs: number } {
-  const b = body as { revision?: unknown; items?: unknown; off_road?: unknown; time_ms?: unknown };
+export function suggestionsFrom(body: unknown): { revision: number; items: Suggestion[]; offRoad: number; timeMs: number; matcher: string } {
+  const b = body as { revision?: unknown; items?: unknown; off_road?: unknown; time_ms?: unknown; matcher?: unknown };
   if (!b || !Array.isArray(b.items)) throw new Error("The suggestions answer has no items.");
   const items = b.items.map((raw, i) => {
     const it = raw as Record<string, unknown>;
@@ -148,7 +148,8 @@ export function suggestionsFrom(body: unknown): { revision: number; items: Sugge
       adjustable: Boolean(it.adjustable),
     };
   });
-  return { revision: Number(b.revision), items, offRoad: Number(b.off_road ?? 0), timeMs: Number(b.time_ms ?? 0) };
+  return { revision: Number(b.revision), items, offRoad: Number(b.off_road ?? 0), timeMs: Number(b.time_ms ?? 0),
+    matcher: b.matcher === "grid" ? "grid" : "roads" };
 }
 
 type Feature = GeoJSON.Feature<GeoJSON.Geometry, Record<string, unknown>>;

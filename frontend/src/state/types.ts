@@ -126,6 +126,8 @@ export interface SuggestionsReady {
   items: Suggestion[];
   offRoad: number;
   timeMs: number;
+  /** Which matcher answered: "roads" (the road network) or "grid" (the drivable-area grid). */
+  matcher: string;
   /** Keyframe index of the focused suggestion, or null. */
   focus: number | null;
   /** Suggestions the operator passed over (not accepted, left out of "Accept all"). */
