@@ -145,6 +145,10 @@ def test_keyframe_times_must_increase(drive) -> None:
     t[7] = t[6]
     with pytest.raises(ValueError, match="keyframe 7: field t_s"):
         match_on_roads(drive.lon_deg, drive.lat_deg, drive.q_body_to_enu_wxyz, osm_extract(), t_s=t)
+    lat = drive.lat_deg.copy()
+    lat[4] = np.nan
+    with pytest.raises(ValueError, match="keyframe 4: field lat: not a finite number"):
+        match_on_roads(drive.lon_deg, lat, drive.q_body_to_enu_wxyz, osm_extract())
 
 
 def test_cli_suggest_writes_one_line_per_keyframe(tmp_path) -> None:

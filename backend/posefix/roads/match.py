@@ -340,6 +340,10 @@ def match_on_roads(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_wxyz:
         if bad.size:
             raise ValueError(f"keyframe {int(bad[0]) + 1}: field t_s: times must increase")
     ll = np.column_stack([lon[idx], lat[idx]])
+    for k, name in enumerate(("lon", "lat")):
+        bad = np.flatnonzero(~np.isfinite(ll[:, k]))
+        if bad.size:
+            raise ValueError(f"keyframe {int(bad[0])}: field {name}: not a finite number")
     g0 = local_georef(float(ll[:, 0].min()), float(ll[:, 1].min()))
     pad_lon, pad_lat = margin_m * g0.dlon_deg_per_m, margin_m * g0.dlat_deg_per_m
     bbox = (float(ll[:, 0].min() - pad_lon), float(ll[:, 1].min() - pad_lat),
