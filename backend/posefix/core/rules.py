@@ -36,13 +36,12 @@ each side of every sample; the reason is ``too_few_keyframes``.
 
 ``max_move_m`` defaults to 1,000 m: GNSS in urban canyons is off by 5-60 m and a multipath
 jump by a few hundred at worst, so a longer drag is a slip of the mouse, not a correction.
-Beyond it the local tangent plane the solver works in no longer fits the Earth: a
-horizontal move of d metres lifts the point by about d^2 / (2 R) (0.08 m at 1 km, 24 km at
-the 550 km of a 10 degree drag), and that lift reaches the exported altitudes. There is no
-"unlimited": settings (a task's rules, the engine's config file) take 1 m to
-``MAX_MOVE_LIMIT_M`` (10 km, where the lift is 7.8 m, within the vertical error of a GNSS
-fix), and ``engine.altitude`` refuses any solution whose altitudes leave what the input and
-the edits allow.
+The solver's tangent plane leaves the ellipsoid by about d^2 / (2 R) at d metres from its
+origin (7.8 m at 10 km); heights are read back as the reported height plus the solve's up
+correction (``engine.problem``), so a 2-D move keeps its altitude at any length.  There is
+no "unlimited" all the same: settings (a task's rules, the engine's config file) take 1 m
+to ``MAX_MOVE_LIMIT_M`` (10 km), and ``engine.altitude`` refuses any solution whose
+altitudes leave what the input and the edits allow.
 """
 
 from __future__ import annotations

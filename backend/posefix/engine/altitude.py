@@ -1,9 +1,11 @@
 """The altitudes a correction may give: within what the input and the edits allow.
 
 The solver works in one East-North-Up plane anchored at the run's first sample, and a 2-D
-move leaves the vertical free. A correction that moves poses far across that plane lifts
-them by about d^2 / (2 R) (0.08 m at 1 km, 24 km at 550 km), and nothing else in the
-problem would notice. So every solution is checked: each corrected keyframe altitude must
+move leaves the vertical free.  A corrected pose's height is its reported height plus the
+solution's up correction (``Problem.geodetic``), so the plane's curvature (a pose moved d
+across it sits d^2 / (2 R) below the plane's height: 7.8 m at 10 km) never reaches the
+altitudes; what is left to guard is the solve's own vertical answer.  So every solution is
+checked: each corrected keyframe altitude must
 lie within the range of the run's own altitudes (the reported poses and, where present, the
 GNSS fixes) and the altitudes of 3-D edits, widened by ``SIGMAS`` vertical standard
 deviations of a fix (the location term's ``sigma_v_m`` and the drift model's
@@ -58,5 +60,5 @@ def altitude_refusal(alt_m: np.ndarray, band: tuple[float, float], active: np.nd
         return None
     return Refusal(worst, REASON, (
         f"The correction would put keyframe {worst} at an altitude of {alt[worst]:.1f} m, outside the "
-        f"{lo:.1f} to {hi:.1f} m that the run's altitudes and the edits allow: the moves reach too far "
-        "for the solver's local frame; move the poses less far, or give the move an altitude."))
+        f"{lo:.1f} to {hi:.1f} m that the run's altitudes and the edits allow: more than the input's "
+        "vertical error; give the moves an altitude if the height should change."))

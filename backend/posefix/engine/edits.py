@@ -77,15 +77,15 @@ class Edits:
 
 
 def targets_enu(problem, moves) -> np.ndarray:
-    """(m, 3) ENU targets of moves on ``problem``'s default keyframes; a 2-D move keeps the
-    keyframe's reported altitude."""
+    """(m, 3) ENU targets of moves on ``problem``'s default keyframes (``Problem.targets``: a 2-D
+    move at the keyframe's reported altitude, a 3-D move's height change on its reported up)."""
     moves = list(moves)
     if not moves:
         return np.zeros((0, 3))
     index = problem.keyframe_index
     rows = index[np.clip([m.index for m in moves], 0, len(index) - 1)]
-    alt = np.array([problem.run.alt_m[r] if m.alt_m is None else m.alt_m for m, r in zip(moves, rows)])
-    return problem.to_enu(np.array([m.lon_deg for m in moves]), np.array([m.lat_deg for m in moves]), alt)
+    alt = np.array([np.nan if m.alt_m is None else m.alt_m for m in moves], dtype=float)
+    return problem.targets(np.array([m.lon_deg for m in moves]), np.array([m.lat_deg for m in moves]), alt, rows)
 
 
 def check_batch(problem, rules: EditRules, base: Edits, moves: list[Edit], deleted=()) -> RuleCheck:

@@ -23,7 +23,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from posefix.core import geodesy
 from posefix.core.drift import LEVEL_TAPER_KEYFRAMES, DriftEstimate, DriftParams
 from posefix.engine.edits import Edit, Edits, accepted_batch, check_batch, targets_enu
 from posefix.engine.results import Preview, Solution
@@ -96,6 +95,6 @@ def preview_batch(problem, moves: list[Edit], deleted, base_edits: Edits, base: 
                  "(the commit re-estimates it over the whole run)",
         "exact": False,
     }
-    lat, lon, _ = geodesy.enu_to_geodetic(sol.keyframes.p_enu_m, problem.origin)
+    lon, lat, _ = problem.lonlatalt(sol)
     return Preview(lon_deg=np.asarray(lon), lat_deg=np.asarray(lat), solution=sol, refusals=check.refusals,
                    flags=check.flags, edits=merged, info=info)

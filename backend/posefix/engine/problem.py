@@ -8,6 +8,16 @@ live drag at keyframe level (``engine.preview``), ``full_run`` propagates to eve
 Frames: the optimisation runs in an East-North-Up frame anchored at the first sample
 (exact, through ECEF).  A pose's quaternion in the run is relative to ENU at its own
 position; it is rotated into the anchored frame for the optimisation and back on output.
+
+Heights: the plane is level only at its origin, so a pose kept at plane height ``u`` while
+moved ``d`` across it would rise ``≈ d²/(2R)`` above the ellipsoid (7.8 m at 10 km).  The
+plane's up is therefore read as a correction, not a height: a corrected pose gets
+
+    h = h~ + (u - u~),   (e, n) from the plane,
+
+with ``h~, u~`` its reported ellipsoidal height and plane up (``geodetic``), and a 3-D edit's
+vertical target is ``u~_k + (h_edit - h~_k)`` at its keyframe ``k`` (``targets``).  A 2-D move
+then changes no height, and a 3-D edit's height is met exactly.
 """
 
 from __future__ import annotations
@@ -141,6 +151,26 @@ class Problem:
 
     def to_enu(self, lon_deg, lat_deg, alt_m) -> np.ndarray:
         return geodesy.geodetic_to_enu(np.atleast_1d(lat_deg), np.atleast_1d(lon_deg), np.atleast_1d(alt_m), self.origin)
+
+    def targets(self, lon_deg, lat_deg, alt_m, rows) -> np.ndarray:
+        """(m,3) edit targets on run ``rows``: east/north of (lon, lat) at height ``alt_m`` (NaN: a
+        2-D move, at the row's reported height); a 3-D move's up is the row's reported up plus the
+        height change it asks for (see the module docstring), not the plane up of the point."""
+        rows = np.asarray(rows, dtype=np.int64)
+        alt = np.asarray(alt_m, dtype=float).reshape(-1)
+        has_alt = np.isfinite(alt)
+        alt = np.where(has_alt, alt, self.run.alt_m[rows])
+        c = self.to_enu(lon_deg, lat_deg, alt) if len(rows) else np.zeros((0, 3))
+        c[has_alt, 2] = self.p_enu_m[rows[has_alt], 2] + (alt[has_alt] - self.run.alt_m[rows[has_alt]])
+        return c
+
+    def geodetic(self, p_enu_m, rows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Latitude, longitude (degrees), altitude (m) of corrected positions of run ``rows``: the
+        reported height plus the solution's up correction, at the plane's east/north."""
+        rows = np.asarray(rows, dtype=np.int64)
+        p = np.asarray(p_enu_m, dtype=float).reshape(-1, 3)
+        alt = self.run.alt_m[rows] + (p[:, 2] - self.p_enu_m[rows, 2])
+        return geodesy.en_height_to_geodetic(p[:, :2], alt, self.origin, up_m=p[:, 2])
 
     # ----------------------------------------------------------------- terms
 
@@ -483,8 +513,7 @@ class Problem:
         lla = np.array([(m.lon_deg, m.lat_deg, np.nan if m.alt_m is None else m.alt_m) for m in edits.moves],
                        dtype=float).reshape(-1, 3)
         has_alt = np.array([m.alt_m is not None for m in edits.moves], dtype=bool)
-        alt = np.where(has_alt, lla[:, 2], self.run.alt_m[rows_m])
-        c_m = geodesy.geodetic_to_enu(lla[:, 1], lla[:, 0], alt, self.origin) if len(rows_m) else np.zeros((0, 3))
+        c_m = self.targets(lla[:, 0], lla[:, 1], lla[:, 2], rows_m)
         return index, edit_kf, c_m, has_alt, deleted_kf
 
     def _check_rules(self, index, edit_kf, c_m, deleted_kf) -> list[Refusal]:
@@ -535,7 +564,7 @@ class Problem:
 
     def lonlatalt(self, sol: Solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Longitude, latitude (degrees) and altitude (m) of a solution's keyframes, (k,) each."""
-        lat, lon, alt = geodesy.enu_to_geodetic(sol.keyframes.p_enu_m, self.origin)
+        lat, lon, alt = self.geodetic(sol.keyframes.p_enu_m, sol.keyframes.index)
         return np.asarray(lon), np.asarray(lat), np.asarray(alt)
 
     # ----------------------------------------------------------------- full rate
@@ -557,7 +586,7 @@ class Problem:
         r = self.local_to_anchor(act)
         c_local = rot.quat_multiply(rot.quat_conjugate(r), rot.quat_multiply(c_kf, r))
         q_new = interpolate_rotations(c_local, seg, alpha, then_multiply_wxyz=self._q_local, kf_index=act)
-        lat, lon, alt = geodesy.enu_to_geodetic(p_new, self.origin)
+        lat, lon, alt = self.geodetic(p_new, np.arange(n))
         out = self.run.with_poses(lat, lon, alt, q_new)
         deleted_rows = rows_of_keyframes(kfs.index, n, np.flatnonzero(kfs.deleted))
         if self.cfg.rules.deleted == "remove" and len(deleted_rows):
