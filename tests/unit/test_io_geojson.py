@@ -108,3 +108,21 @@ def test_single_linestring_errors_keep_their_line(tmp_path, coords, field):
         read_run(p)
     assert info.value.field == field
     assert info.value.line == 4  # the line where the feature's object opens
+
+
+def test_stdlib_decides_what_orjson_refuses(tmp_path):
+    """BOM, NaN literals and huge integers read as the stdlib reads them; bad UTF-8 is named."""
+    doc = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": [[24.0, 60.0], [24.001, 60.001]]},
+           "properties": {"times": [0, 1], "gnss": [[24.0, 60.0, float("nan")], None]}}
+    p = tmp_path / "nan.geojson"
+    p.write_bytes(b"\xef\xbb\xbf" + json.dumps(doc).encode())  # json writes NaN, which orjson refuses
+    with pytest.warns(OrientationDerivedWarning):
+        run = read_run(p)
+    assert run.n == 2 and np.isnan(run.gnss_alt_m).all() and run.gnss_lat_deg[0] == 60.0
+    doc["properties"]["times"] = [0, 10**30]  # beyond 64 bits: orjson refuses, json reads
+    p.write_text(json.dumps(doc))
+    with pytest.warns(OrientationDerivedWarning):
+        assert read_run(p).t_s[1] == 1e30
+    p.write_bytes(b'{"type": "Feature", "geometry": null, "properties": {"name": "\xff"}}')
+    with pytest.raises(RunFormatError, match="cannot read file"):
+        read_run(p)
