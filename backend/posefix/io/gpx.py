@@ -22,7 +22,7 @@ import numpy as np
 
 from posefix.core.run import PoseRun
 from posefix.io._build import build_run
-from posefix.io._timeconv import datetime_to_s, s_to_iso_utc
+from posefix.io._timeconv import datetime_to_s, s_to_iso_utc_bytes
 from posefix.io.atomic import atomic_write
 from posefix.io.errors import RunFormatError
 
@@ -207,23 +207,22 @@ def write_gpx(run: PoseRun, path: str | os.PathLike, name: str | None = None) ->
     Times are ``t_s`` read as Unix seconds (UTC, microseconds). The orientation (and raw
     GNSS, if any) go in a ``pf:pose`` extension so posefix reads them back; other tools
     ignore it. Per-sample images and extra columns are not carried by GPX. Rows are
-    rendered column-wise (``_text.render_rows``), so an hour at 100 Hz takes well under a
-    second.
+    rendered column-wise in threads (``_text.render_row_parts``) and written without joining.
     """
     from xml.sax.saxutils import escape
 
-    from posefix.io._text import render_rows
+    from posefix.io._text import render_row_parts
 
     q = run.q_body_to_enu_wxyz
     pieces: list = [
         '<trkpt lat="', run.lat_deg, '" lon="', run.lon_deg, '"><ele>', run.alt_m, "</ele><time>",
-        s_to_iso_utc(run.t_s).tolist(), '</time><extensions><pf:pose qw="', q[:, 0], '" qx="', q[:, 1],
+        s_to_iso_utc_bytes(run.t_s), '</time><extensions><pf:pose qw="', q[:, 0], '" qx="', q[:, 1],
         '" qy="', q[:, 2], '" qz="', q[:, 3],
     ]
     if run.has_gnss:
         pieces += ['" gnss_lat="', run.gnss_lat_deg, '" gnss_lon="', run.gnss_lon_deg, '" gnss_alt="', run.gnss_alt_m]
     pieces.append('"/></extensions></trkpt>\n')
-    body = render_rows(pieces, nan_text="")
+    body = render_row_parts(pieces, nan_text="")
     track_name = escape(name if name is not None else Path(run.source).stem or "posefix run")
     head = (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
@@ -233,5 +232,6 @@ def write_gpx(run: PoseRun, path: str | os.PathLike, name: str | None = None) ->
     )
     with atomic_write(path, "wb") as fh:
         fh.write(head.encode("utf-8"))
-        fh.write(body)
+        for part in body:
+            fh.write(part)
         fh.write(b"</trkseg></trk>\n</gpx>\n")
