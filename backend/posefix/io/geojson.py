@@ -21,6 +21,7 @@ import gc
 import json
 import os
 import re
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -181,6 +182,10 @@ def _read(path: str | os.PathLike) -> PoseRun:
         raise RunFormatError(path, None, None, f"cannot read file: {exc}") from None
     if data.startswith(_BOM):
         data = data[len(_BOM):]
+    # The scan for booleans (below) runs in numpy, which releases the GIL, beside the parse.
+    pool = ThreadPoolExecutor(1)
+    bools = pool.submit(_stray_booleans, data)
+    pool.shutdown(wait=False)
     try:
         # orjson (C) parses in a third of the stdlib's time; it refuses what json accepts
         # beyond RFC 8259 (NaN, huge integers, lone surrogates), so on any refusal the
@@ -205,8 +210,7 @@ def _read(path: str | os.PathLike) -> PoseRun:
             raise RunFormatError(path, exc.lineno, None, f"not valid JSON: {exc.msg}") from None
     # JSON booleans would pass numpy's float conversion as 0/1; with any besides the one
     # posefix writes, take the careful path.
-    n_bool = data.count(b"true") + data.count(b"false") - len(_ORIENTATION_FLAG.findall(data))
-    fast = _fast_linestring(doc) if n_bool == 0 else None
+    fast = _fast_linestring(doc) if bools.result() == 0 else None
     if fast is not None:
 
         def line_of_feature(_row: int) -> int | None:
@@ -250,7 +254,28 @@ def _read(path: str | os.PathLike) -> PoseRun:
 
 
 _BOM = "\ufeff".encode()
-_ORIENTATION_FLAG = re.compile(rb'"orientation_derived"\s*:\s*(?:true|false)')
+_FLAG_BEFORE = re.compile(rb'"orientation_derived"\s*:\s*$')
+
+
+def _stray_booleans(data: bytes) -> int:
+    """How many ``true``/``false`` the document holds besides ``orientation_derived``'s value.
+
+    Only letters ``t`` and ``f`` can start one, and numbers hold neither, so numpy finds
+    the few candidates without a Python-level pass over the bytes.
+    """
+    arr = np.frombuffer(data, dtype=np.uint8)
+    count = 0
+    for word in (b"true", b"false"):
+        pos = np.flatnonzero(arr == word[0])
+        pos = pos[pos + len(word) <= arr.size]
+        ok = np.ones(pos.size, dtype=bool)
+        for k in range(1, len(word)):
+            ok &= arr[pos + k] == word[k]
+        for p in pos[ok].tolist():
+            # whitespace of over 64 bytes before the flag's value only costs the careful path
+            if not _FLAG_BEFORE.search(data, max(0, p - 64 - len(b'"orientation_derived":')), p):
+                count += 1
+    return count
 _FIELD_NAMES = {"t_s": "times", "lat_deg": "coordinates (lat)", "lon_deg": "coordinates (lon)",
                 "alt_m": "coordinates (alt)", "q_body_to_enu_wxyz": "q_body_to_enu_wxyz",
                 "gnss_lat_deg": "gnss (lat)", "gnss_lon_deg": "gnss (lon)", "gnss_alt_m": "gnss (alt)"}
