@@ -300,12 +300,14 @@ class ChiTest:
 
 def chi2_test(x_m: np.ndarray, valid: np.ndarray, sigma_fit_m: np.ndarray, sigma_ref_m: np.ndarray,
               *, dof_ref: np.ndarray | None = None, contributes: np.ndarray | None = None,
-              tau_fit_m: np.ndarray | None = None, nu: float = NU) -> ChiTest:
+              tau_fit_m: np.ndarray | None = None, tau_level_m: np.ndarray | None = None, nu: float = NU) -> ChiTest:
     """Each submission against the robust fusion of the others that ``contributes`` (weights
     ``sigma_fit_m``, steady offsets of scale ``tau_fit_m``), scaled by its operator's accuracy
     measured elsewhere (``sigma_ref_m``, measured with ``dof_ref`` (m,) degrees of freedom,
     default infinite). The spread is tested about the submission's own mean residual and the
-    mean residual (its steady offset) apart."""
+    mean residual (its steady offset) apart; how much each other sets the level is judged by
+    ``tau_level_m`` (the operators' steadiness measured elsewhere; default ``tau_fit_m``)."""
+    tau_level_m = tau_fit_m if tau_level_m is None else tau_level_m
     x = np.asarray(x_m, dtype=float)
     v = np.asarray(valid, dtype=bool)
     m = len(x)
@@ -343,7 +345,7 @@ def chi2_test(x_m: np.ndarray, valid: np.ndarray, sigma_fit_m: np.ndarray, sigma
         s_up2 = s_ref[i] ** 2 * (1.0 if np.isinf(d_ref[i]) else max(d_ref[i], 1.0) / stats.chi2.ppf(0.05, max(d_ref[i], 1.0)))
         offset = float(np.sum(r_mean ** 2) / (np.mean(s_up2 + shape_var) / ok.sum() + TAU0_M ** 2 + level_var
                                               + _others_offset_var(x[others], v[others], f, ok,
-                                                                   None if tau_fit_m is None else np.asarray(tau_fit_m)[others])))
+                                                                   None if tau_level_m is None else np.asarray(tau_level_m)[others])))
         p_offset = stats.chi2.sf(offset, 2.0)
         p[i] = float(min(1.0, 2.0 * min(p_spread, p_offset)))  # two tests: Bonferroni
         dist[i] = float(np.mean(np.linalg.norm(r, axis=1)))

@@ -170,7 +170,10 @@ def weigh(session: Session, tr: TaskRun, subs: list[Assignment], contributors: s
     typical = float(np.nanmedian(s_ref)) if np.any(~np.isnan(s_ref)) else float(np.median(full.sigma_m[ops]))
     ref = np.where(np.isnan(ref), typical, ref)
     tau = full.tau_m[ops] if full.tau_m is not None else None
-    test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, dof_ref=d_ref[ops], contributes=truth, tau_fit_m=tau)
+    # whose level the others' consensus stands on: operators measured steady elsewhere, not
+    # this run's own fit (which makes whoever it put on the level look steady)
+    test = fusion.chi2_test(here.x_m, here.valid, full.sigma_m[ops], ref, dof_ref=d_ref[ops], contributes=truth, tau_fit_m=tau,
+                            tau_level_m=_merge_tau(tau_ref[ops], full.fused[-1], truth))
     pull = truth if chosen or not np.any(truth & (test.p >= ALPHA)) else truth & (test.p >= ALPHA)
     # the positions where the EM puts them; their uncertainty no smaller than what the
     # operators' steadiness measured elsewhere allows (the merge guard reads it)
