@@ -1,6 +1,6 @@
 """Benchmark the engine's I/O and whole-process paths against plain scripts, in one run.
 
-    python -m benchmarks.engine_io [--duration-s 3600] [--rate-hz 100] [--repeats 5]
+    python -m benchmarks.engine_io [--duration-s 3600] [--rate-hz 100] [--repeats 5] [--formats-only] [--gpx-read]
 
 Prints one table: each figure beside its peer or target, with the ratios (ours / ref;
 below 1.0 is better) of wall time and of CPU time. Timings are wall-clock, best of a few
@@ -19,7 +19,8 @@ install does.
 Parts:
 - hour at 100 Hz (``posefix.core.simulate``, mixed regime, seed 1, 36 edits): CSV parse
   (target 0.25 s) beside the stdlib ``csv`` reader, CSV write (target 0.3 s), the Parquet
-  and Arrow IPC round trips (target 0.1 s), GeoJSON/GPX beside CSV, and ``posefix correct``
+  and Arrow IPC round trips (target 0.1 s), GeoJSON/GPX beside CSV (GeoJSON read and GPX
+  write target 0.5 s; GPX read through gpxpy with ``--gpx-read``), and ``posefix correct``
   as a whole process against both scripts (target <= 0.5x GTSAM and under the naive script).
 - small runs, whole process: the real comma2k19 drive (1,200 rows, 3 edits; the run the
   start-up work was profiled on: tuned) and a held-out simulated 2-minute drive at 10 Hz
@@ -144,6 +145,8 @@ def main() -> None:
     ap.add_argument("--duration-s", type=float, default=3600.0)
     ap.add_argument("--rate-hz", type=float, default=100.0)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--formats-only", action="store_true", help="stop after the hour's file formats (no whole processes)")
+    ap.add_argument("--gpx-read", action="store_true", help="also time reading the hour's GPX (gpxpy: some 10 s)")
     args = ap.parse_args()
     compile_bytecode()
 
@@ -176,10 +179,20 @@ def main() -> None:
             t_rt = best_of(round_trip)
             rows.append((f"{kind} write + read", t_rt, CPU["last"], 0.1, "target"))
         for ext in ("geojson", "gpx"):
-            t_w = best_of(lambda: write_run(s.run, d / f"run.{ext}"), 1)
-            rows.append((f"{ext} write", t_w, CPU["last"], t_write, "CSV write", c_write))
-        t_r = best_of(lambda: read_run(d / "run.geojson"), 1)
-        rows.append(("geojson read", t_r, CPU["last"], t_read, "CSV parse", c_read))
+            t_w = best_of(lambda: write_run(s.run, d / f"run.{ext}"))
+            rows.append((f"{ext} write vs CSV", t_w, CPU["last"], t_write, "CSV write", c_write))
+            if ext == "gpx":
+                rows.append(("gpx write vs target", t_w, CPU["last"], 0.5, "target"))
+        t_r = best_of(lambda: read_run(d / "run.geojson"))
+        rows.append(("geojson read vs CSV", t_r, CPU["last"], t_read, "CSV parse", c_read))
+        rows.append(("geojson read vs target", t_r, CPU["last"], 0.5, "target"))
+        if args.gpx_read:
+            t_r = best_of(lambda: read_run(d / "run.gpx"), 1)
+            rows.append(("gpx read (gpxpy) vs CSV", t_r, CPU["last"], t_read, "CSV parse", c_read))
+        if args.formats_only:
+            n = s.run.n
+            _print(rows, n, s, "")
+            return
         n = s.run.n
         best = whole_processes(correct_commands(hour_csv, hour_edits, d), max(2, args.repeats // 2))
         add_whole_process_rows(rows, "hour", best)
@@ -198,7 +211,11 @@ def main() -> None:
         overhead = best["posefix"][0] - best["python"][0]
         rows.append(("CLI overhead (--version - python)", overhead, best["posefix"][1] - best["python"][1], 0.1, "target"))
 
-    print(f"\nengine I/O benchmark: hour {n} samples, {len(s.edits)} edits; small runs 1,200 and 1,201 rows\n")
+    _print(rows, n, s, "; small runs 1,200 and 1,201 rows")
+
+
+def _print(rows: list, n: int, s, small: str) -> None:
+    print(f"\nengine I/O benchmark: hour {n} samples, {len(s.edits)} edits{small}\n")
     print(f"{'measure':<42}{'ours (s)':>9}{'cpu (s)':>9}{'ref (s)':>9}{'ref cpu':>9}{'ratio':>7}{'cpu ratio':>10}  ref")
     for name, ours, cpu, ref, kind, *ref_cpu in rows:
         rc = ref_cpu[0] if ref_cpu else ref  # a target: the same seconds either way

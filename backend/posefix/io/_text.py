@@ -19,15 +19,43 @@ def _as_text_column(values, nan_text: str):
     import pyarrow.compute as pc
 
     if isinstance(values, np.ndarray) and values.dtype.kind in "fiu":
-        arr = pa.array(np.ascontiguousarray(values, dtype=float))
-        text = pc.cast(arr, pa.large_string())  # 64-bit offsets: outputs may pass 2 GB
-        nan = np.isnan(values.astype(float, copy=False))
-        if nan.any():
-            text = pc.if_else(pa.array(nan), pa.scalar(nan_text, pa.large_string()), text)
-        return text
+        v = np.ascontiguousarray(values, dtype=float)
+        av = np.abs(v)
+        # orjson formats shortest round-trip floats some 4 times quicker than Arrow, in the
+        # same text where the two notations agree: non-integers with 1e-5 <= |v| < 1e10
+        # (checked on 10 million values; outside it one writes 1e+12 / 1.0 and the other
+        # 1000000000000 / 1). Arrow formats the rest, so the output is Arrow's throughout.
+        near = (av >= 1e-5) & (av < 1e10) & (np.floor(v) != v)
+        if near.sum() * 4 >= v.size:
+            return _orjson_text(v, near, nan_text)
+        return _arrow_text(v, nan_text)
     if isinstance(values, np.ndarray) and values.dtype.kind == "S":  # ASCII, e.g. preformatted times
         return pc.cast(pa.array(values), pa.large_string())
     return pa.array(["" if v is None else str(v) for v in values], type=pa.large_string())
+
+
+def _arrow_text(v: np.ndarray, nan_text: str):
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    text = pc.cast(pa.array(v), pa.large_string())  # 64-bit offsets: outputs may pass 2 GB
+    nan = np.isnan(v)
+    if nan.any():
+        text = pc.if_else(pa.array(nan), pa.scalar(nan_text, pa.large_string()), text)
+    return text
+
+
+def _orjson_text(v: np.ndarray, near: np.ndarray, nan_text: str):
+    import orjson
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    doc = orjson.dumps(v, option=orjson.OPT_SERIALIZE_NUMPY)  # b"[a,b,...]"
+    text = pc.split_pattern(pa.array([doc[1:-1]], type=pa.large_binary()).cast(pa.large_string()), ",").flatten()
+    if not near.all():
+        far = ~near
+        text = pc.replace_with_mask(text, pa.array(far), _arrow_text(v[far], nan_text))
+    return text
 
 
 # Rows per thread: Arrow's kernels release the GIL, so chunks format on every core.
