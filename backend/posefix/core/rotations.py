@@ -165,13 +165,7 @@ def right_jacobian(phi_rad: np.ndarray) -> np.ndarray:
 
 def right_jacobian_inverse(phi_rad: np.ndarray) -> np.ndarray:
     """Jr^-1(phi) = I + [phi]x/2 + (1/t^2 - (1+cos t)/(2 t sin t)) [phi]x^2."""
-    phi = np.asarray(phi_rad, dtype=float)
-    theta = np.linalg.norm(phi, axis=-1)
-    small = theta < 1e-3
-    t = np.where(small, 1.0, theta)
-    c = np.where(small, 1.0 / 12.0 + theta * theta / 720.0, 1.0 / (t * t) - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)))
-    K = skew(phi)
-    return np.eye(3) + 0.5 * K + c[..., None, None] * (K @ K)
+    return jacobian_inverses(phi_rad)[0]
 
 
 def left_jacobian_inverse(phi_rad: np.ndarray) -> np.ndarray:
