@@ -181,7 +181,7 @@ def _read_small(path: Path, data: bytes, names: list[str]) -> PoseRun:
             try:
                 return np.array([float(v) for v in values])
             except ValueError:
-                pass
+                pass  # the row-by-row pass below names the first bad row and field
         out = np.empty(len(values))
         for i, value in enumerate(values):
             v = value.strip()

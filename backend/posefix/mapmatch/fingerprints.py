@@ -560,6 +560,13 @@ def save_fingerprints(fp: FingerprintMap, path: str | Path) -> int:
     return Path(path).stat().st_size
 
 
+def _read_flag(z, name: str, path) -> bool:
+    flag = int(z[name])
+    if flag not in (0, 1):
+        raise ValueError(f"{path}:0: field {name}: must be 0 or 1, got {flag}")
+    return bool(flag)
+
+
 def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
     try:
         z = np.load(path, allow_pickle=False)
@@ -588,18 +595,12 @@ def load_fingerprints(path: str | Path, method: str = "knn") -> FingerprintMap:
             table["walk_corr"] = rho
         # Files before it: f3 on, as they were tracked (their calibration cannot be judged).
         if "f3_calibrated" in z.files:
-            flag = int(z["f3_calibrated"])
-            if flag not in (0, 1):
-                raise ValueError(f"{path}:0: field f3_calibrated: must be 0 or 1, got {flag}")
-            table["f3_calibrated"] = bool(flag)
+            table["f3_calibrated"] = _read_flag(z, "f3_calibrated", path)
             table["f3_note"] = str(z["f3_note"]) if "f3_note" in z.files else ""
         # Files before it were tracked with the plain Gaussian f3.
         table["robust"] = False
         if "f3_robust" in z.files:
-            flag = int(z["f3_robust"])
-            if flag not in (0, 1):
-                raise ValueError(f"{path}:0: field f3_robust: must be 0 or 1, got {flag}")
-            table["robust"] = bool(flag)
+            table["robust"] = _read_flag(z, "f3_robust", path)
         if "scale_match_db" in z.files and z["scale_match_db"].size:
             if z["scale_match_db"].shape != z["scale_by_match"].shape:
                 raise ValueError(f"{path}:0: field scale_by_match: shape differs from scale_match_db")

@@ -36,5 +36,5 @@ def suggest_vehicle_run(lon_deg: np.ndarray, lat_deg: np.ndarray, q_body_to_enu_
             return match_on_roads(lon_deg, lat_deg, q_body_to_enu_wxyz, osm_path, index=index, t_s=t_s,
                                   min_near_share=MIN_NEAR_SHARE)
         except FewRoadsNear:
-            pass
+            pass  # off the network (yards, car parks, indoors): the grid answers
     return suggest_for_run(lon_deg, lat_deg, q_body_to_enu_wxyz, osm_path, index=index, cell_m=cell_m)
