@@ -152,3 +152,16 @@ def test_the_level_comes_from_operators_steady_elsewhere() -> None:
     est = fusion.estimate(runs, np.full(5, np.nan), np.zeros(5))
     level = np.linalg.norm(np.mean(est.fused[0].t_m - truths[0], axis=0))
     assert level < 1.0, (level, est.tau_m)
+
+
+def test_rejected_work_beside_shifted_work_does_not_swap_the_scales() -> None:
+    """A 2 m operator, an 8 m operator a reviewer rejected and an adversary 30 m off: the
+    model without offsets splits the two honest ones' variance arbitrarily; the offset model,
+    started alike, reads the adversary's shape and keeps the 2 m operator the accurate one."""
+    rng = np.random.default_rng(1)
+    k = 37
+    t = np.cumsum(rng.normal(0, 3, (k, 2)), axis=0)
+    x = np.stack([t + rng.normal(0, 2, (k, 2)), t + rng.normal(0, 8, (k, 2)), t + [21.0, 21.0] + rng.normal(0, 0.5, (k, 2))])
+    run = fusion.RunObs(x, np.ones((3, k), bool), np.array([0, 1, 2]), np.array([True, False, False]))
+    est = fusion.estimate([run], np.full(3, np.nan), np.zeros(3))
+    assert est.sigma_m[0] < 3.0 < 6.0 < est.sigma_m[1], est.sigma_m

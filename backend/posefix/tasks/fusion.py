@@ -201,16 +201,20 @@ class Estimate:
 def estimate(runs: list[RunObs], prior_sigma_m: np.ndarray, prior_n: np.ndarray, *, nu: float = NU,
              iters: int = 100, tol: float = 1e-4) -> Estimate:
     """EM over operator accuracies, their steady offsets and the true positions of every run
-    (see the module text). It starts from the model without offsets, whose scales count an
-    operator's offsets as error: where a run's level is ambiguous (no partner known to be
-    steady), the operators steadiest elsewhere then set it, not a local optimum.
+    (see the module text). Offset scales start from the model without offsets, whose scales
+    count an operator's offsets as error: where a run's level is ambiguous (no partner known
+    to be steady), the operators steadiest elsewhere then set it, not a local optimum.
 
     prior_sigma_m : (n_ops,) NaN where the operator was never measured;
     prior_n : (n_ops,) pseudo-positions of that prior (0 where NaN).
     """
     plain = _em(runs, prior_sigma_m, prior_n, None, nu=nu, iters=iters, tol=tol)
-    return _em(runs, prior_sigma_m, prior_n, plain.sigma_m, nu=nu, iters=iters, tol=tol, s_start=plain.sigma_m,
-               fused_start=plain.fused)
+    # scales start alike (but for gold-measured operators): without offsets two operators left
+    # alone beside shifted work split their variance arbitrarily, and the offset model, which
+    # reads the shifted work's shape, is to settle it, not inherit the split
+    gold = ~np.isnan(np.asarray(prior_sigma_m, dtype=float)) & (np.asarray(prior_n, dtype=float) > 0)
+    s_start = np.where(gold, plain.sigma_m, float(np.median(plain.sigma_m)))
+    return _em(runs, prior_sigma_m, prior_n, plain.sigma_m, nu=nu, iters=iters, tol=tol, s_start=s_start)
 
 
 def _em(runs: list[RunObs], prior_sigma_m: np.ndarray, prior_n: np.ndarray, tau_start: np.ndarray | None, *,
