@@ -114,6 +114,8 @@ BAD_CASES = [
     ([HEADER], 2, None, "empty"),
     ([HEADER, GOOD[0], "0.1,60.17,24.94"], 3, None, "expected 8 fields, found 3"),
     ([HEADER, GOOD[0], "", GOOD[1], "", "0.2,60.0,24.94,x,1,0,0,0"], 6, "alt", "not a number"),
+    # two bad fields: the first line in the file is named, whichever column comes first
+    ([HEADER, GOOD[0], "0.1,60.17,24.94,x,1,0,0,0", "0.2,60.17,abc,20,1,0,0,0"], 3, "alt", "not a number"),
     ([HEADER, GOOD[0], "", GOOD[1], "", "0.05,60.0,24.94,1,1,0,0,0"], 6, "t", "not strictly increasing"),
     (["t,lat,lat,lon,alt", "0,1,1,1,1"], 1, "lat", "twice"),
 ]

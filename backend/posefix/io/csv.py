@@ -175,31 +175,31 @@ def _read_small(path: Path, data: bytes, names: list[str]) -> PoseRun:
     cols = list(zip(*rows))
     nulls = set(NULL_VALUES)
 
-    def numeric(name: str, nullable: bool) -> np.ndarray:
+    def numeric(name: str) -> np.ndarray:
+        """The column as floats, null-like fields NaN; a field that is not a number is named
+        by ``_locate_failure``, the first bad line in the file, as on the Arrow path."""
         values = cols[names.index(name)]
         if "_" not in "".join(values):  # float() reads 1_000, which Arrow refuses
             try:
                 return np.array([float(v) for v in values])
             except ValueError:
-                pass  # the row-by-row pass below names the first bad row and field
+                pass  # a null-like field, or a bad one: one by one below
         out = np.empty(len(values))
         for i, value in enumerate(values):
             v = value.strip()
             if v in nulls:
-                if not nullable:
-                    raise RunFormatError(path, lines[i], name, "value is missing or NaN")
-                out[i] = np.nan
+                out[i] = np.nan  # where the column may not miss, checked() names it
                 continue
             try:
                 if "_" in v:
                     raise ValueError(v)
                 out[i] = float(v)
             except ValueError:
-                raise RunFormatError(path, lines[i], name, f"not a number: {value!r}") from None
+                raise _locate_failure(path, data, names) from None
         return out
 
     def checked(name: str) -> np.ndarray:
-        arr = numeric(name, False)
+        arr = numeric(name)
         bad = np.isnan(arr)
         if bad.any():
             raise RunFormatError(path, lines[int(np.flatnonzero(bad)[0])], name, "value is missing or NaN")
@@ -208,7 +208,7 @@ def _read_small(path: Path, data: bytes, names: list[str]) -> PoseRun:
     t = checked("t")
     lat, lon, alt = (checked(c) for c in ("lat", "lon", "alt"))
     q = np.column_stack([checked(c) for c in QUAT_COLUMNS]) if "qw" in names else None
-    gnss = tuple(numeric(c, True) for c in GNSS_COLUMNS) if "gnss_lat" in names else None
+    gnss = tuple(numeric(c) for c in GNSS_COLUMNS) if "gnss_lat" in names else None
     images = list(cols[names.index(IMAGE_COLUMN)]) if IMAGE_COLUMN in names else None
     known = set(NUMERIC) | {IMAGE_COLUMN}
     extra = {}
