@@ -362,8 +362,7 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     (``walk_heading_sd_rad``, ``walk_scale_sd``). With an unknown start the EM prior stays
     :data:`posefix.mapmatch.calibrate.SIGMA_A`, and the marginalisation costs four more whole
     passes over every live vertex offline; it is what keeps a converged ellipse honest there:
-    once the place is found the walk's own heading and stride dominate the error (held-out
-    site2/F2 with WiFi, converged waypoints inside 2σ 71 -> 82 %, all 71 -> 93 %).
+    once the place is found the walk's own heading and stride dominate the error.
     """
     from posefix.mapmatch.calibrate import SIGMA_A, apply_step_correction, estimate_step_correction
     from posefix.mapmatch.sensors import steps_from_walk
@@ -434,13 +433,11 @@ def _marginalise_walk(runs: list[TrackResult], weights: np.ndarray) -> TrackResu
         Σ = Σ_h w_h (Σ_h + (μ_h - μ_c)(μ_h - μ_c)ᵀ),
 
     so the ellipse holds the spread that an offset or a stride lasting the whole walk causes,
-    which a CRF with per-step independent errors cannot see. (The mixture's own mean moved the
-    positions a little worse on the tuning walks, site2/F2 1.59 -> 1.77 m mean: a turned or
-    stretched walk that ends in the wrong corridor drags it.) The weights are the prior's, not the
-    walk's evidence: the evidence counts every step's error as independent too, so it picks
-    one offset far more confidently than it should (on site1/F1's tuning walks its arg-max
-    offset made the mean error worse, 1.32 -> 1.60 m). Vertex path, modes and converged are the
-    central run's."""
+    which a CRF with per-step independent errors cannot see. The position is not the mixture's
+    mean: a turned or stretched walk that ends in the wrong corridor would drag it. The weights
+    are the prior's, not the walk's evidence: the evidence counts every step's error as
+    independent too, so it picks one offset far more confidently than it should. Vertex path,
+    modes and converged are the central run's."""
     w = np.asarray(weights, dtype=float) / np.sum(weights)
     centre = runs[int(np.argmax(w))]
     mu = centre.p_xy_m
