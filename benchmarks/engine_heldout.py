@@ -31,6 +31,14 @@ COMMA_SPACINGS_S = (10.0, 20.0)  # the segment lasts a minute
 TUNED = (("ekf", "time_offset", "no_gnss"), (11,))
 HELD_OUT = (("ekf_smoothed", "ins_lowpass", "scale_heading", "outage"), (21,))
 SPACINGS_S = (30.0, 100.0, 300.0)
+# "at most" counts a tie only at float level, the same for both peers: a figure a solver's
+# tolerance away from the peer's (the plain model is GTSAM's own graph) is a loss, not a tie
+TIE_REL = 1e-9
+
+
+def at_most(a, b) -> np.ndarray:
+    """a <= b up to a relative 1e-9 (``TIE_REL``), elementwise."""
+    return np.asarray(a, dtype=float) <= np.asarray(b, dtype=float) * (1.0 + TIE_REL)
 
 
 def edits_on(truth: PoseRun, origin, every_s: float, rng: np.random.Generator, click_m: float = 0.5) -> list[SimEdit]:
@@ -167,13 +175,14 @@ def summary(name: str, rows: list[dict]) -> None:
     if not rows:
         return
     vs_naive = np.array([r["posefix"] / r["naive"] for r in rows])
-    vs_gt = np.array([r["posefix"] / r["gtsam"] for r in rows])
+    pf = np.array([r["posefix"] for r in rows])
+    le_naive = at_most(pf, [r["naive"] for r in rows])
+    le_gt = at_most(pf, [r["gtsam"] for r in rows])
     honest = np.array([r["honest"] for r in rows])
     ok = np.isfinite(honest)
     within = np.mean((honest[ok] <= 1.5) & (honest[ok] >= 1 / 1.5)) if ok.any() else np.nan
-    # the plain model is GTSAM's own graph: the same optimum to the solvers' tolerance counts as a tie
-    print(f"   {name}: posefix <= naive on {int(np.sum(vs_naive <= 1.0))}/{len(rows)}, <= GTSAM (ties within 0.5 %) on "
-          f"{int(np.sum(vs_gt <= 1.005))}/{len(rows)}, mean posefix/naive {vs_naive.mean():.2f}; predicted RMSE "
+    print(f"   {name}: posefix <= naive on {int(np.sum(le_naive))}/{len(rows)}, <= GTSAM on {int(np.sum(le_gt))}/{len(rows)} "
+          f"(ties: relative {TIE_REL:g}), mean posefix/naive {vs_naive.mean():.2f}; predicted RMSE "
           f"within x1.5 of the truth on {100 * within:.0f} % of {int(ok.sum())} runs (targets: all, all, <= 0.9, >= 90 %)")
 
 

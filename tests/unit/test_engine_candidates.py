@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.engine_candidates import candidates_of, row, simplex
+from benchmarks.engine_heldout import at_most
 from posefix.core.families import simulate_family
 
 
@@ -14,6 +15,13 @@ def test_simplex_grid_holds_every_vertex_and_only_convex_weights():
     assert np.allclose(W.sum(axis=1), 1.0) and np.all(W >= -1e-12)
     for vertex in np.eye(3):
         assert np.any(np.all(np.isclose(W, vertex), axis=1))
+
+
+def test_ties_count_only_at_float_level_for_both_peers():
+    assert at_most(2.0, 2.0) and at_most(2.0 * (1 + 1e-12), 2.0)
+    # a solver's tolerance away (the 0.5 % the GTSAM count once allowed) is a loss
+    assert not at_most(2.0 * (1 + 1e-6), 2.0) and not at_most(2.0 * 1.004, 2.0)
+    assert list(at_most([1.0, 3.0], [2.0, 2.0])) == [True, False]
 
 
 def test_candidates_row_on_a_short_ekf_drive():
