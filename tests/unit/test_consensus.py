@@ -134,3 +134,16 @@ def test_edit_conflicts_only_on_keyframes_both_moved() -> None:
     ]
     found = edit_conflicts(moves, distance_m=5.0)
     assert sorted((c.a, c.b, c.index, round(c.distance_m, 3)) for c in found) == [(0, 1, 4, 12.0), (1, 2, 4, 9.0)]
+
+
+def test_fused_metres_go_back_to_the_points_they_came_from_on_a_long_run() -> None:
+    """The merge turns fused metres back into lon/lat; 60 km from the origin the way back
+    must land on the clicked point, not a metre outwards of it."""
+    from posefix.core import geodesy
+    from posefix.tasks.states import local_m, to_lonlat
+    origin = geodesy.EnuOrigin(35.17, 136.88, 0.0)
+    lon = np.array([136.88, 137.20, 137.45, 136.30])
+    lat = np.array([35.17, 35.40, 34.90, 35.60])
+    back_lon, back_lat = to_lonlat(local_m(lon, lat, origin), origin)
+    miss_m = np.hypot((back_lon - lon) * 111e3 * np.cos(np.radians(lat)), (back_lat - lat) * 111e3)
+    assert miss_m.max() < 1e-3

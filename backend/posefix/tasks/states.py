@@ -123,6 +123,10 @@ def run_origin(session: Session, run_id: int) -> geodesy.EnuOrigin:
 
 
 def to_lonlat(x_m: np.ndarray, origin: geodesy.EnuOrigin) -> tuple[np.ndarray, np.ndarray]:
-    """(k, 2) East-North metres -> lon (k,), lat (k,)."""
-    lat, lon, _ = geodesy.enu_to_geodetic(np.column_stack([x_m, np.zeros(len(x_m))]), origin)
+    """(k, 2) East-North metres -> lon (k,), lat (k,); the inverse of ``local_m``.
+
+    ``local_m`` measures points on the ellipsoid (height 0), whose plane up falls about
+    d²/2R below the tangent plane; going back at up = 0 would tilt them outwards by
+    roughly d³/2R² (1.5 m at 50 km), so the way back asks for height 0 too."""
+    lat, lon, _ = geodesy.en_height_to_geodetic(np.asarray(x_m, dtype=float).reshape(-1, 2), 0.0, origin)
     return lon, lat
