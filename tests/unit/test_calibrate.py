@@ -141,3 +141,29 @@ def test_a_drag_on_a_naive_revision_previews_naive_interpolation():
     assert np.allclose(pv.solution.keyframes.p_enu_m[200, :2], p[:2], atol=1e-6)  # the dragged keyframe lands on the drag
     # beyond the edits either side the run keeps the revision's positions
     assert np.allclose(pv.solution.keyframes.p_enu_m[260:, :2], base.keyframes.p_enu_m[260:, :2], atol=1e-9)
+
+
+def test_plain_and_relative_start_from_the_gnss_answer_and_score_as_refits_do():
+    """The other candidates are solved by Newton steps from the first model's answer and their
+    held-out edits scored on one model of the run: both as a solve of their own and a refit per edit."""
+    from posefix.engine.calibrate import Calibration, held_out_picks
+    from posefix.engine.choose import held_out_fixed_terms, held_out_residuals, with_linearisation
+
+    sim = simulate(duration_s=900.0, rate_hz=2.0, edit_every_s=60.0, seed=5, regime="mixed")
+    problem = prepare(sim.run)
+    index, edit_kf, c, has_alt, deleted = problem._resolve_edit_set(_edits(sim))
+    args = (index, edit_kf, c, has_alt, deleted)
+    picks = held_out_picks(len(edit_kf), 12)
+    base = with_linearisation(problem.solve_rows(*args, calibration=Calibration("gnss", float("nan"))))
+    for name in ("plain", "relative"):
+        calib = Calibration(name, float("nan"))
+        fast = problem.solve_rows(*args, base, calibration=calib, newton=True)
+        assert fast.solver.method == "local-newton"
+        full = problem.solve_rows(*args, calibration=calib)
+        # horizontally (without a location term nothing holds the height but where it starts)
+        assert np.max(np.abs(fast.keyframes.p_enu_m - full.keyframes.p_enu_m)[:, :2]) < 5e-3
+        own = with_linearisation(dataclasses.replace(fast, linearisation=None))
+        r_fast = held_out_fixed_terms(own, edit_kf, picks)
+        r_refit = held_out_residuals(problem, own, *args, picks)
+        assert r_fast is not None and np.max(np.abs(r_fast - r_refit)) < 1e-3
+        assert np.max(np.abs(r_fast)) > 0.1  # the edits are not predicted trivially

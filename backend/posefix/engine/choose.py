@@ -9,6 +9,14 @@ vouch for itself; naive interpolation by interpolating the others):
 
 and ``calibrate.choose`` keeps the calibrated model unless another predicts better, on the
 run-wide scale, by more than the held-out noise allows.
+
+Cost: only the first engine model (``gnss``; without raw GNSS ``relative``) is solved by
+Levenberg-Marquardt. The others (``plain``, ``relative``) differ from it by metres in position
+and well under a milliradian in orientation, so Newton steps on its model of the relative and
+gravity terms reach their answers (``Problem.solve_rows(newton=True)``); one chosen is then
+solved in full as the first was. Their terms away from the edits do not depend on the edits,
+so their held-out solves share one model of the run with edit j's term taken out
+(``held_out_fixed_terms``: the same windows and steps as a refit, without a solve each).
 """
 
 from __future__ import annotations
@@ -17,8 +25,10 @@ import dataclasses
 
 import numpy as np
 
+from posefix.core import terms as T
 from posefix.core.drift import edit_offsets
 from posefix.core.rules import Refusal
+from posefix.core.solver import linearise_fixed_terms
 from posefix.engine.calibrate import (
     CV_MAX_HELD_OUT,
     MIN_EDITS,
@@ -60,13 +70,27 @@ def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: 
     y = p_rep[e, :2] - c[:, :2]
     bridge = bridge_ratio(t_kf, t_kf[e], y, rank[picks], problem.cfg.user.sigma_h_m)
     solved, residuals = {}, {}
+    base = None  # the first engine model's full solve (with its linearisation): the others start from it
     for name in candidates(problem.cfg.calibration.model, problem.g_enu_m is not None):
         if name == "naive":
             residuals[name] = naive_held_out(t_kf[e], y, rank[picks])
             continue
-        sol = problem.solve_rows(*args, warm_start, flags, calibration=Calibration(model=name, cv_rmse_m=float("nan")))
+        calib = Calibration(model=name, cv_rmse_m=float("nan"))
+        if base is None:
+            sol = problem.solve_rows(*args, warm_start, flags, calibration=calib)
+            base = with_linearisation(sol)
+        else:
+            # another model's answer lies metres from the first's with the orientations within a
+            # milliradian: Newton steps on the first's model of the relative and gravity terms
+            # reach it (within a millimetre) for a fraction of a Levenberg-Marquardt solve
+            sol = problem.solve_rows(*args, base, flags, calibration=calib, newton=True)
         solved[name] = sol
-        residuals[name] = held_out_residuals(problem, sol, *args, picks)
+        r = None
+        if name in ("plain", "relative"):  # no drift model, no bends: one model serves every held-out edit
+            if sol.linearisation is not None and not np.array_equal(sol.linearisation.x_lin, sol.x):
+                sol = with_linearisation(dataclasses.replace(sol, linearisation=None))
+            r = held_out_fixed_terms(with_linearisation(sol), edit_kf, picks)
+        residuals[name] = r if r is not None else held_out_residuals(problem, sol, *args, picks)
     scores = {name: float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) for name, r in residuals.items()}
     model = choose(residuals, bridge[0])
     d = None
@@ -77,7 +101,20 @@ def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: 
     if model == "naive":
         return naive_solution(problem, *args, flags, calib)
     sol = solved[model]
+    if sol.solver.method == "local-newton":
+        # chosen: solved as the first model was (from the caller's warm start), since without a
+        # location term the height is held only where it starts
+        sol = problem.solve_rows(*args, warm_start, flags, calibration=sol.drift.calibration)
     return dataclasses.replace(sol, drift=dataclasses.replace(sol.drift, calibration=calib))
+
+
+def with_linearisation(sol: Solution) -> Solution:
+    """``sol`` with the model of its relative and gravity terms at its answer (``solver.Linearisation``),
+    built here when the solve did not keep one (a long run: see ``LINEARISE_MAX_KEYFRAMES``)."""
+    if sol.linearisation is not None or sol.terms is None or not np.all(np.isfinite(sol.x)):
+        return sol
+    ev = T.add_jacobians(sol.terms, T.evaluate(sol.terms, sol.x, with_jac=False))
+    return dataclasses.replace(sol, linearisation=linearise_fixed_terms(sol.terms, ev))
 
 
 def held_out_residuals(problem, sol: Solution, index, edit_kf, edit_c_m, edit_has_alt, deleted_kf,
@@ -96,4 +133,66 @@ def held_out_residuals(problem, sol: Solution, index, edit_kf, edit_c_m, edit_ha
         s = problem.solve_rows(index, edit_kf[keep], edit_c_m[keep], edit_has_alt[keep], deleted_kf,
                             warm_start=sol, flags=sol.flags, local=True, span=span)
         out[n] = s.keyframes.p_enu_m[edit_kf[j], :2] - edit_c_m[j, :2]
+    return out
+
+
+
+def held_out_fixed_terms(sol: Solution, edit_kf: np.ndarray, picks: np.ndarray) -> np.ndarray | None:
+    """``held_out_residuals`` for a model whose terms away from the edits do not depend on them
+    (``plain``, ``relative``: no drift model, no bends), without a solve per edit: dropping edit j
+    changes only its own user term, so each held-out solve is the window Newton steps of
+    ``window.solve_window`` (the same windows, held ends, widening and tolerances) on one model
+    of the whole run built once: ``sol.linearisation`` with every edit's term, from which edit
+    j's is subtracted (exact: the user term is linear).  None when ``sol`` kept no linearisation
+    at its own answer, or a window's steps do not settle (then refit each edit).
+    """
+    from posefix.core.solver import BAND_U, _model_from_linearisation, _newton_on_model
+    from posefix.engine.window import LOCAL_EDGE_M, LOCAL_MARGIN
+
+    terms, lin = sol.terms, sol.linearisation
+    if terms is None or lin is None or not lin.matches(terms) or not np.array_equal(lin.x_lin, sol.x):
+        return None
+    k = terms.n_keyframes
+    x_lin, ab, g = _model_from_linearisation(terms, lin.window(0, k - 1))
+    xs = sol.x.reshape(-1, 6)
+    active_number = np.cumsum(sol.active) - 1
+    e_act = active_number[np.asarray(edit_kf, dtype=np.int64)]
+    e_sorted = np.sort(e_act)
+    user_at = {int(i): n for n, i in enumerate(terms.user_idx)}
+    out = np.zeros((len(picks), 2))
+    for n, j in enumerate(picks):
+        kj = int(e_act[j])
+        at = int(np.searchsorted(e_sorted, kj))
+        span = (int(e_sorted[at - 1]) if at > 0 else -1, int(e_sorted[at + 1]) if at + 1 < len(e_sorted) else k)
+        u = user_at[kj]
+        w2 = terms.user_w[u] ** 2
+        c = terms.user_c_m[u]
+        margin, last = LOCAL_MARGIN, None
+        while True:
+            a = max(min(max(kj - margin, 0), span[0] + 1), 0)
+            b = min(max(min(kj + margin, k - 1), span[1] - 1), k - 1)
+            lo, hi = max(a - 1, 0), min(b + 1, k - 1)
+            if (lo, hi) == last:  # widened past what the neighbouring edits already bound: the same window
+                margin *= 3
+                continue
+            last = (lo, hi)
+            sub = T.window_terms(terms, lo, hi)
+            fixed = np.zeros(hi - lo + 1, dtype=bool)
+            fixed[0] = lo < a
+            fixed[-1] = hi > b
+            ab_w = np.array(ab[:, 6 * lo:6 * hi + 6], order="F", copy=True)
+            g_w = g[6 * lo:6 * hi + 6].copy()
+            col = 6 * (kj - lo) + np.arange(3)
+            ab_w[BAND_U, col] -= w2  # edit j's user term out of the model
+            g_w[col] -= w2 * np.where(w2 > 0, x_lin[6 * kj:6 * kj + 3] - c, 0.0)
+            x0 = sol.x[6 * lo:6 * hi + 6]
+            x_sub, _ = _newton_on_model(sub, ab_w, g_w, x_lin[6 * lo:6 * hi + 6], x0, fixed, 8, 0.02)
+            if x_sub is None or float(np.max(np.abs((x_sub - x0).reshape(-1, 6)[:, 3:]), initial=0.0)) >= 1e-3:
+                return None
+            moved = np.abs(x_sub.reshape(-1, 6)[:, :3] - xs[lo:hi + 1, :3]).max(axis=1)
+            edge = max(moved[1] if fixed[0] else 0.0, moved[-2] if fixed[-1] else 0.0)
+            if edge <= LOCAL_EDGE_M:
+                break
+            margin *= 3
+        out[n] = x_sub[6 * (kj - lo):6 * (kj - lo) + 2] - c[:2]
     return out

@@ -49,7 +49,7 @@ from posefix.core.keyframes import KeyframeSet, path_length_m, rows_of_keyframes
 from posefix.core.propagate import interpolate_rotations, propagate_corrections
 from posefix.core.rules import EditRules, KeyframeMove, Refusal, check_edits
 from posefix.core.run import PoseRun
-from posefix.core.solver import solve_banded
+from posefix.core.solver import solve_banded, solve_local_newton
 from posefix.core.solver_reference import solve
 from posefix.engine.altitude import altitude_band, altitude_refusal
 from posefix.engine.calibrate import Calibration
@@ -63,6 +63,9 @@ from posefix.engine.window import solve_window
 # many keyframes (about 105 doubles each: 3 MB at 3,600, 17 MB at 20,000; kept with the solution,
 # and in the server's stored solution files); beyond, a local solve linearises its window
 LINEARISE_MAX_KEYFRAMES = 20_000
+# Newton steps a whole-run ``newton`` solve may take from another model's answer before it falls
+# back to Levenberg-Marquardt (metres apart: a few more than a local solve's)
+NEWTON_MAX_STEPS = 12
 
 
 class Problem:
@@ -294,6 +297,7 @@ class Problem:
         plausible_steps: bool = False,
         calibration: Calibration | None = None,
         span: tuple[int, int] | None = None,
+        newton: bool = False,
     ) -> Solution:
         """Optimise keyframes ``index`` with edits given as keyframe numbers and ENU targets.
 
@@ -403,6 +407,12 @@ class Problem:
             if lin is not None and not lin.matches(terms):
                 lin = None
             x, result = solve_window(terms, warm_sol.terms, x0, warm_sol.solver, cfg.solver, lin, span)
+        elif newton and same_rows and warm_sol.linearisation is not None and cfg.solver.method == "banded" \
+                and warm_sol.linearisation.matches(terms):
+            lin = warm_sol.linearisation
+            out = solve_local_newton(terms, x0, max_steps=NEWTON_MAX_STEPS, linearisation=lin.window(0, len(act_rows) - 1))
+            if out is not None:
+                x, result = out
         if result is None:
             if cfg.solver.method == "banded":
                 x, result = solve_banded(terms, x0, cfg.solver.max_iterations, cfg.solver.ftol,

@@ -50,7 +50,7 @@ def solve_window(terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: Solve
                                 dict(old_result.cost_after), time.perf_counter() - started,
                                 "local-window", extra={"window_held": (0, -1)})
     xs = x0.reshape(-1, 6)
-    margin = LOCAL_MARGIN
+    margin, last = LOCAL_MARGIN, None
     while True:
         a = max(int(hit[0]) - margin, 0)
         b = min(int(hit[-1]) + margin, k - 1)
@@ -59,6 +59,10 @@ def solve_window(terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: Solve
         if b - a + 1 > 0.5 * k and span is None:
             return None, None
         lo, hi = max(a - 1, 0), min(b + 1, k - 1)
+        if (lo, hi) == last:  # widened within what ``span`` already bound: the same window, the same answer
+            margin *= 3
+            continue
+        last = (lo, hi)
         sub = T.window_terms(terms, lo, hi)
         fixed = np.zeros(hi - lo + 1, dtype=bool)
         fixed[0] = lo < a
