@@ -181,8 +181,10 @@ def summary(name: str, rows: list[dict]) -> None:
     honest = np.array([r["honest"] for r in rows])
     ok = np.isfinite(honest)
     within = np.mean((honest[ok] <= 1.5) & (honest[ok] >= 1 / 1.5)) if ok.any() else np.nan
+    # losses a solver's tolerance wide (the plain model is GTSAM's graph) are named, not counted
+    near = int(np.sum(~le_gt & at_most(pf, [1.00001 * r["gtsam"] for r in rows])))
     print(f"   {name}: posefix <= naive on {int(np.sum(le_naive))}/{len(rows)}, <= GTSAM on {int(np.sum(le_gt))}/{len(rows)} "
-          f"(ties: relative {TIE_REL:g}), mean posefix/naive {vs_naive.mean():.2f}; predicted RMSE "
+          f"(ties: relative {TIE_REL:g}; {near} more within 1e-5), mean posefix/naive {vs_naive.mean():.2f}; predicted RMSE "
           f"within x1.5 of the truth on {100 * within:.0f} % of {int(ok.sum())} runs (targets: all, all, <= 0.9, >= 90 %)")
 
 
