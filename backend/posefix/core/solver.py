@@ -408,7 +408,9 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
     # relative constraints (no fix, no edit)
     ab_s[BAND_U] += 1e-9 * np.maximum(ab_s[BAND_U], 1e-12)
     rows, col_off, ia, ib = _position_band_index()
-    free = np.flatnonzero(loc_free)
+    # a location term at weight 0 (dropped, or a model without one) adds nothing: with none left
+    # the Newton matrix never changes and one factorisation serves every step
+    free = np.flatnonzero(loc_free & np.any(terms.loc_w > 0, axis=1))
     li = loc_idx[free]
     # flat places of the located keyframes' position blocks (upper triangle) in the band, read in
     # Fortran order (element (r, c) at c * 12 + r), and of their positions in the state
@@ -419,18 +421,21 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
     x = x_start.copy()
     factor, last = None, np.inf  # Cholesky factor of the last Newton matrix; size of the last step (m)
     for step in range(1, max_steps + 1):
-        g_loc, H_loc = T.location_model(terms, x.reshape(-1, 6)[:, :3])
+        if len(free):
+            g_loc, H_loc = T.location_model(terms, x.reshape(-1, 6)[:, :3])
         # the model's gradient with the full matrix: a held keyframe away from x_lin (a window
         # solved before moved it) still pulls its free neighbour
         d = x - x_lin
         g = g_c + band_matvec(ab_c, d) if d.any() else g_c.copy()
-        g[g_flat] += g_loc[free].ravel()
+        if len(free):
+            g[g_flat] += g_loc[free].ravel()
         if fixed_rows is not None:
             g[fixed_rows] = 0.0
         try:
-            if factor is None or last > CHORD_AFTER_STEPS * step_tol_m:
+            if factor is None or (len(free) and last > CHORD_AFTER_STEPS * step_tol_m):
                 ab = ab_s.copy(order="F")
-                ab.reshape(-1, order="F")[band_flat] += H_loc.reshape(-1, 9)[free[:, None], tri].ravel()
+                if len(free):
+                    ab.reshape(-1, order="F")[band_flat] += H_loc.reshape(-1, 9)[free[:, None], tri].ravel()
                 factor = factor_banded_spd(ab, overwrite=True)
                 chord = False
             else:
@@ -444,7 +449,7 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
         size = float(np.max(np.abs(dx.reshape(-1, 6)[:, :3])))
         if size <= step_tol_m:
             return x, step
-        if chord and size > 0.5 * last:
+        if chord and len(free) and size > 0.5 * last:
             factor = None  # the chord steps do not contract fast: back to Newton steps
         last = size
     return None, max_steps
