@@ -150,8 +150,9 @@ def _first_bad(mask: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
-def validate_run(run: PoseRun, quaternion_tolerance: float = 1e-3) -> None:
+def validate_run(run: PoseRun, quaternion_tolerance: float = 1e-3) -> np.ndarray:
     """Check the invariants of a run; raise ``RunValidationError`` naming the first bad row.
+    Returns the quaternions' norms (n,), so a reader normalising them needs no second pass.
 
     Checks: non-empty; shapes agree; finite positions and times; latitude in [-90, 90],
     longitude in [-180, 180]; times strictly increasing; quaternions finite and of unit norm
@@ -215,3 +216,4 @@ def validate_run(run: PoseRun, quaternion_tolerance: float = 1e-3) -> None:
     for name, a in run.extra.items():
         if len(a) != n:
             raise RunValidationError(name, None, f"{len(a)} entries, expected {n}")
+    return norm

@@ -57,7 +57,7 @@ def build_run(
         source=str(source),
     )
     try:
-        validate_run(run)
+        norm = validate_run(run)
     except RunValidationError as exc:
         line = None if exc.row is None else line_of_row(exc.row)
         raise RunFormatError(source, line, names.get(exc.field, exc.field), exc.message) from None
@@ -69,12 +69,15 @@ def build_run(
         run = replace(run, q_body_to_enu_wxyz=q)
     else:
         # Accept small rounding in the file; store exact unit quaternions.
-        run = _with_normalised_q(run)
+        run = _with_normalised_q(run, norm)
     return run
 
 
-def _with_normalised_q(run: PoseRun) -> PoseRun:
+def _with_normalised_q(run: PoseRun, norm: np.ndarray | None = None) -> PoseRun:
+    """``run`` with its quaternions divided by their norms (``norm``: already computed, (n,))."""
     from dataclasses import replace
 
     q = run.q_body_to_enu_wxyz
-    return replace(run, q_body_to_enu_wxyz=q / np.linalg.norm(q, axis=1, keepdims=True))
+    if norm is None:
+        norm = np.linalg.norm(q, axis=1)
+    return replace(run, q_body_to_enu_wxyz=q / norm[:, None])
