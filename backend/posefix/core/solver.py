@@ -395,7 +395,8 @@ def _hold_in_band(ab: np.ndarray, fixed: np.ndarray) -> None:
 
 
 def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: np.ndarray,
-                     x_start: np.ndarray, fixed, max_steps: int, step_tol_m: float) -> tuple[np.ndarray | None, int]:
+                     x_start: np.ndarray, fixed, max_steps: int, step_tol_m: float,
+                     step_axes: int = 3) -> tuple[np.ndarray | None, int]:
     """Inner loop of ``solve_local_newton``: every term but location by its model at ``x_lin``
     (J^T J as band ab_c (12, 6n), Fortran order, and gradient g_c there), from ``x_start``."""
     loc_idx = terms.loc_idx
@@ -446,7 +447,7 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
         except LinAlgError:
             return None, step
         x = x + dx
-        size = float(np.max(np.abs(dx.reshape(-1, 6)[:, :3])))
+        size = float(np.max(np.abs(dx.reshape(-1, 6)[:, :step_axes])))
         if size <= step_tol_m:
             return x, step
         if chord and len(free) and size > 0.5 * last:
@@ -463,6 +464,7 @@ def solve_local_newton(
     step_tol_m: float = 0.02,
     linearisation: WindowModel | None = None,
     cost_before: dict[str, float] | None = None,
+    step_axes: int = 3,
 ) -> tuple[np.ndarray, SolverResult] | None:
     """Newton steps from a warm start with only the location term re-linearised (one more edit).
 
@@ -490,6 +492,9 @@ def solve_local_newton(
     x0, e.g. the solved run before one more edit): then nothing is linearised at x0, only the
     user terms are added to it (and relative-translation edges re-weighted).
     ``cost_before`` (the costs at x0, per term) saves evaluating them when known.
+    ``step_axes`` 2: a step's size is measured east/north only (for a caller that reads the
+    horizontal answer alone: without a location term the height of a long run is pinned by
+    a hair of damping only, and round-off moves it by centimetres at every step).
 
     Returns None when the steps do not settle within ``max_steps`` or do not lower the
     cost (a far start: use ``solve_banded``).  ``fixed`` holds keyframes at ``x0``.
@@ -512,7 +517,7 @@ def solve_local_newton(
                 before = ev.costs()
             D, U, g_c = T.normal_equations(terms, ev, location=False)
             ab_c = np.asfortranarray(pack_banded(D, U))
-        x, n = _newton_on_model(terms, ab_c, g_c, x_lin, x, fixed, max_steps - steps, step_tol_m)
+        x, n = _newton_on_model(terms, ab_c, g_c, x_lin, x, fixed, max_steps - steps, step_tol_m, step_axes)
         if x is None:
             return None
         steps += n
