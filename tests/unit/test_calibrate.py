@@ -167,3 +167,81 @@ def test_plain_and_relative_start_from_the_gnss_answer_and_score_as_refits_do():
         r_refit = held_out_residuals(problem, own, *args, picks)
         assert r_fast is not None and np.max(np.abs(r_fast - r_refit)) < 1e-3
         assert np.max(np.abs(r_fast)) > 0.1  # the edits are not predicted trivially
+
+
+def _gauss_markov(rng, t, sigma, tau, dims=2):
+    x = np.zeros((len(t), dims))
+    x[0] = rng.standard_normal(dims) * sigma
+    a = np.exp(-np.diff(t) / tau)
+    for i in range(1, len(t)):
+        x[i] = a[i - 1] * x[i - 1] + np.sqrt(1 - a[i - 1] ** 2) * sigma * rng.standard_normal(dims)
+    return x
+
+
+def test_interpolation_variance_is_the_random_walk_bridge_and_matches_a_simulated_gauss_markov_one():
+    from posefix.engine.calibrate import interpolation_variance
+
+    q, G = 0.04, 100.0
+    te = np.array([0.0, G])
+    u = np.linspace(0.0, 1.0, 2001)
+    v = interpolation_variance(lambda h: q * np.abs(h) / 2.0, u * G, te, 0.0, 0.0)
+    assert np.allclose(v, q * G * u * (1 - u))
+    assert abs(np.mean(v) - q * G / 6.0) < 1e-3 * q * G and abs(v[1000] - q * G / 4.0) < 1e-12
+    # a Gauss-Markov process, white pose error and noisy edits: the formula against 4,000 draws
+    rng = np.random.default_rng(3)
+    sigma, tau, nw, ne = 2.0, 60.0, 0.3, 0.25
+    t = np.arange(0.0, 100.5, 1.0)
+    err = []
+    for _ in range(4000):
+        x = _gauss_markov(rng, t, sigma, tau, dims=1)[:, 0] + rng.standard_normal(len(t)) * np.sqrt(nw)
+        y = x[[0, -1]] + rng.standard_normal(2) * np.sqrt(ne)
+        err.append(x - np.interp(t, te, y))
+    mc = np.mean(np.square(err), axis=0)
+    model = interpolation_variance(lambda h: sigma**2 * -np.expm1(-np.abs(h) / tau), t, te, nw, ne)
+    # (at the edits' own samples the pose's white error is the edit's: the formula is for every other)
+    assert np.all(np.abs(mc - model)[1:-1] < 0.08 * model[1:-1])
+
+
+def _naive_prediction(rng, t, err, every_s, n_max=None):
+    """Naive interpolation of noisy edits every ``every_s`` of a pose error ``err`` (n,2): its
+    true RMSE over the samples and the one predicted at the real spacing (module docstring 6)."""
+    from posefix.engine.calibrate import CV_MAX_HELD_OUT, held_out_picks, spacing_ratio
+    from posefix.engine.naive import interpolate_offsets
+
+    idx = np.searchsorted(t, (np.arange(int(t[-1] // every_s)) + 0.5) * every_s)
+    te = t[idx]
+    y = err[idx] + rng.standard_normal((len(idx), 2)) * 0.5
+    true = np.sqrt(np.mean(np.sum((err - interpolate_offsets(t, te, y)) ** 2, axis=1)))
+    picks = held_out_picks(len(te), n_max or CV_MAX_HELD_OUT)
+    cv = np.sqrt(np.mean(np.sum(naive_held_out(te, y, picks) ** 2, axis=1)))
+    ratio, band = spacing_ratio(t, t, te, y, picks, 0.5)
+    assert abs(np.mean(band) - 1.0) < 1e-6  # V over its run mean: RMS 1 along the run
+    return true, cv * ratio, cv
+
+
+def test_predicted_rmse_is_within_1_5_of_the_truth_on_known_random_walk_and_gauss_markov_processes():
+    t = np.arange(0.0, 21600.0, 2.0)  # six hours: 72 to 720 edits, enough for the variogram's shape
+    cases = []
+    for seed in range(2):
+        rng = np.random.default_rng(10 + seed)
+        walk = np.cumsum(rng.standard_normal((len(t), 2)) * np.sqrt(0.02), axis=0)
+        gm = _gauss_markov(rng, t, 4.0, 120.0)
+        smooth = np.cumsum(_gauss_markov(rng, t, 0.15, 60.0), axis=0)  # an integrated velocity error
+        for err in (walk, gm, smooth):
+            for every in (30.0, 100.0, 300.0):
+                cases.append(_naive_prediction(rng, t, err, every, n_max=10_000))
+    ratios = np.array([pred / true for true, pred, _ in cases])
+    assert np.all((ratios > 1 / 1.5) & (ratios < 1.5)), np.round(ratios, 2)
+    # the held-out RMSE alone (a gap of two spacings) overstates: by about sqrt 3 for a random walk
+    overstated = np.array([cv / true for true, _, cv in cases])
+    assert np.median(overstated) > 1.5
+
+
+def test_pose_jitter_is_the_white_part_of_the_pose_error():
+    from posefix.engine.calibrate import pose_jitter_m2
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 600.0, 0.1)
+    track = np.stack([12.0 * t, 200.0 * np.sin(t / 40.0)], axis=1)  # a vehicle turning, 10 Hz
+    assert pose_jitter_m2(track) < 1e-3
+    assert abs(pose_jitter_m2(track + rng.standard_normal(track.shape) * 0.3) - 0.09) < 0.1 * 0.09

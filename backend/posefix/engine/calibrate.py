@@ -56,12 +56,46 @@ Data, per horizontal axis, at the edit times t_k (sorted): the pose's error at t
    1).  Each candidate's run-wide RMSE is predicted as s_m times its held-out RMSE, and the
    models are compared on that scale (``choose``): the calibrated model stands unless another's
    paired gain in scaled squared error d_k = s_inc^2 |r_k,inc|^2 - s_m^2 |r_k,m|^2 has a mean
-   above ``SWITCH_Z`` standard errors.  With fewer than ``MIN_EDITS`` edits nothing can be held
+   above ``SWITCH_Z`` standard errors (this scale serves the comparison; the reported
+   prediction is section 6's).  With fewer than ``MIN_EDITS`` edits nothing can be held
    out and the stated prior decides (``prior``: the calibrated model with the drift prior,
    whose bias fades from each edit over its tau of a minute, so one edit moves the run near
    it, not the whole run).
-6. Predicted accuracy: the chosen model's s_m times its held-out RMSE, and the 1-sigma along
-   the run following sqrt(V_i) at that RMSE (flat for plain).
+6. Predicted accuracy along the run at the real spacing.  A held-out edit is predicted across
+   a gap twice the edits' spacing; the run's samples lie in gaps of one spacing, many of them
+   near an edit, and an end edit is predicted from one side only.  How much smaller the
+   run-wide error is than the held-out one depends on the pose error's shape below the
+   spacing, which the edits cannot show: it is taken from a process fitted to their
+   variogram, averaged over the shapes it allows.  The pose's error is x(t) + w(t): x a
+   continuous process with semivariogram g(h) = s^2 F(h / l), w white of variance n_w per axis
+   (the pose's sample-to-sample jitter: the second differences of a white error have variance
+   6 n_w, estimated by their median absolute deviation, ``pose_jitter_m2``), each edit off
+   the truth by white noise n_e (the edits' sigma).  Two shapes, each on a grid of l:
+
+       Gauss-Markov (a random walk as l grows):   F(u) = 1 - exp(-u)
+       integrated velocity error (Matern 3/2):    F(u) = 1 - (1 + u) exp(-u)
+
+   (a pose's position error integrates its velocity error: smooth below its correlation
+   time, F ~ u^2, where a random walk has F ~ u).  For each, s^2 is the weighted least-squares
+   fit of gamma(h) - n_e - n_w (section 1's weights N / gamma^2), and its weight among them
+   exp(-cost / 4) (the cost is sum N (gamma^ - gamma)^2 / gamma^2, gamma^ of variance
+   2 gamma^2 / N).  Linear interpolation between the edits a, b either side of time t
+   (gap G, t at u = (t - t_a) / G) leaves per axis the expected squared error
+
+       V(t) = 2 (1 - u) g(u G) + 2 u g((1 - u) G) - 2 u (1 - u) g(G)
+              + n_w (1 + (1 - u)^2 + u^2) + n_e ((1 - u)^2 + u^2)
+
+   (a random walk, g(h) = q h / 2: V = q G u (1 - u), whose mean over a gap is q G / 6 and
+   q G / 4 at its middle), beyond the first or last edit, at a distance d,
+   V = 2 g(d) + 2 n_w + n_e; the held-out edit k is predicted across the gap its neighbours
+   leave, against an edit with its own noise: V_k = V(t_k) + n_e.  Then
+
+       R^2 = sum_shapes weight * mean_samples V(t) / mean_picks V_k
+
+   and the chosen model's predicted RMSE is R (plain: sqrt(R), its error half bridged as in
+   section 5) times its held-out RMSE: the process only sets the ratio, the scale is the
+   model's own held-out error.  The 1-sigma along the run follows sqrt(V) at the keyframes
+   (flat for plain), scaled so that its RMS over the samples is the predicted RMSE.
 """
 
 from __future__ import annotations
@@ -102,7 +136,7 @@ class Calibration:
 
     model: "gnss" | "plain" | "relative" | "naive" | "prior"; cv_rmse_m: leave-one-out horizontal RMSE at the
     edits of the chosen model (NaN with fewer than MIN_EDITS); cv_rmse_by_model: each
-    candidate's; predicted_rmse_m: the run-wide RMSE the scaled model predicts; gnss_share:
+    candidate's; predicted_rmse_m: the run-wide RMSE predicted at the real spacing (section 6); gnss_share:
     w* (section 3); sigma_m (k,): horizontal 1-sigma of the correction per keyframe.
     """
 
@@ -115,6 +149,7 @@ class Calibration:
     pose: ProcessFit | None = None
     gnss: ProcessFit | None = None
     sigma_m: np.ndarray | None = None
+    spacing_ratio: float = float("nan")  # R of module docstring 6: run-wide over held-out RMSE
 
     def to_json(self) -> dict:
         def num(v):
@@ -123,6 +158,7 @@ class Calibration:
         return {"model": self.model, "cv_rmse_m": num(self.cv_rmse_m), "predicted_rmse_m": num(self.predicted_rmse_m),
                 "cv_rmse_by_model": {k: num(v) for k, v in self.cv_rmse_by_model.items()},
                 "gnss_share": num(self.gnss_share), "n_edits": int(self.n_edits),
+                "spacing_ratio": num(self.spacing_ratio),
                 "pose_process": None if self.pose is None else self.pose.to_json(),
                 "gnss_process": None if self.gnss is None else self.gnss.to_json()}
 
@@ -312,11 +348,115 @@ def bridge_ratio(kf_t_s: np.ndarray, edit_t_s: np.ndarray, y_m: np.ndarray, pick
     return f, fit_e, r_e, v_run
 
 
+SPACING_SHAPES = {  # module docstring 6: F(u) of the continuous part of the pose's error
+    "gauss_markov": lambda u: -np.expm1(-u),
+    "integrated": lambda u: 1.0 - (1.0 + u) * np.exp(-u),
+}
+SPACING_L_GRID_S = np.geomspace(10.0, 1e4, 25)
+RATIO_MAX_SAMPLES = 20_000  # the run's samples the mean over the run is taken on (evenly strided)
+
+
+def pose_jitter_m2(p_m: np.ndarray) -> float:
+    """Per-axis variance of the white part of the pose's error from its sample-to-sample jitter
+    (module docstring 6): the median absolute second difference, as a normal sigma, squared / 6.
+    The motion's own second differences (acceleration dt^2) are small and rare beside it."""
+    p = np.asarray(p_m, dtype=float)
+    if len(p) < 3:
+        return 0.0
+    d2 = p[2:] - 2.0 * p[1:-1] + p[:-2]
+    d2 = d2[np.all(np.isfinite(d2), axis=1)]
+    if not len(d2):
+        return 0.0
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return float(np.mean((1.4826 * mad) ** 2) / 6.0)
+
+
+def interpolation_variance(g, t_s: np.ndarray, edit_t_s: np.ndarray, white_m2: float, edit_m2: float) -> np.ndarray:
+    """V(t) of module docstring 6 at times ``t_s`` (n,): per-axis expected squared error of the
+    pose shifted by the edit offsets interpolated linearly in time (sorted ``edit_t_s``), for a
+    continuous error of semivariogram ``g`` (a function of lag arrays), white error ``white_m2``
+    and edit noise ``edit_m2``."""
+    t = np.asarray(t_s, dtype=float)
+    te = np.asarray(edit_t_s, dtype=float)
+    v = np.empty(len(t))
+    before, after = t < te[0], t > te[-1]
+    v[before] = 2.0 * g(te[0] - t[before]) + 2.0 * white_m2 + edit_m2
+    v[after] = 2.0 * g(t[after] - te[-1]) + 2.0 * white_m2 + edit_m2
+    inside = ~(before | after)
+    if len(te) == 1:
+        v[inside] = white_m2 + edit_m2
+        return v
+    j = np.clip(np.searchsorted(te, t[inside], side="right") - 1, 0, len(te) - 2)
+    gap = te[j + 1] - te[j]
+    u = np.where(gap > 0, (t[inside] - te[j]) / np.where(gap > 0, gap, 1.0), 0.0)
+    ends = (1.0 - u) ** 2 + u**2
+    v[inside] = (2.0 * (1.0 - u) * g(u * gap) + 2.0 * u * g((1.0 - u) * gap) - 2.0 * u * (1.0 - u) * g(gap)
+                 + white_m2 * (1.0 + ends) + edit_m2 * ends)
+    return v
+
+
+def held_out_variance(g, edit_t_s: np.ndarray, picks: np.ndarray, white_m2: float, edit_m2: float) -> np.ndarray:
+    """V_k of module docstring 6: the expected squared error per axis of predicting each picked
+    edit (indices into the sorted ``edit_t_s``) from the others by linear interpolation."""
+    te = np.asarray(edit_t_s, dtype=float)
+    out = np.empty(len(picks))
+    for n, k in enumerate(np.asarray(picks, dtype=np.int64)):
+        others = np.delete(te, k)
+        out[n] = interpolation_variance(g, te[k:k + 1], others, white_m2, edit_m2)[0] + edit_m2 if len(others) \
+            else np.nan
+    return out
+
+
+def spacing_ratio(run_t_s: np.ndarray, kf_t_s: np.ndarray, edit_t_s: np.ndarray, y_m: np.ndarray, picks: np.ndarray,
+                  edit_sigma_m: float, white_m2: float = 0.0) -> tuple[float, np.ndarray]:
+    """R of module docstring 6 from the pose's error at the sorted edits ``y_m`` (m,2) and the
+    held-out edits ``picks`` (indices into them), with V at the keyframes ``kf_t_s`` (k,) over
+    its mean over the run's samples ``run_t_s`` (the band's shape, RMS 1 over the run)."""
+    edit_m2 = float(edit_sigma_m) ** 2
+    kf_t = np.asarray(kf_t_s, dtype=float)
+    run_t = np.asarray(run_t_s, dtype=float)
+    run_t = run_t[:: max(1, -(-len(run_t) // RATIO_MAX_SAMPLES))]
+    h, gamma, n = variogram(edit_t_s, y_m)
+    if len(h) == 0 or len(edit_t_s) < 2 or len(picks) == 0:
+        return 1.0, np.ones(len(kf_t))
+    floor = edit_m2 + white_m2
+    w = n / np.maximum(gamma, max(floor, 1e-4)) ** 2
+    z = gamma - floor
+    shapes, logw = [], []
+    for F in SPACING_SHAPES.values():
+        A = F(h[None, :] / SPACING_L_GRID_S[:, None])  # (grid, bins)
+        s2 = np.maximum((A @ (w * z)) / np.maximum((A * A) @ w, 1e-300), 0.0)
+        cost = ((s2[:, None] * A - z) ** 2) @ w
+        for ell, s2_i, c in zip(SPACING_L_GRID_S, s2, cost):
+            shapes.append((F, float(ell), float(s2_i)))
+            logw.append(-float(c) / 4.0)
+    logw = np.asarray(logw)
+    wts = np.exp(logw - logw.max())
+    wts[wts < 1e-6 * wts.max()] = 0.0  # shapes the variogram rules out: not evaluated
+    wts /= wts.sum()
+    ratio2 = 0.0
+    kf_v = np.zeros(len(kf_t))
+    for (F, ell, s2_i), wt in zip(shapes, wts):
+        if wt == 0.0:
+            continue
+
+        def g(lag, F=F, ell=ell, s2_i=s2_i):
+            return s2_i * F(np.abs(lag) / ell)
+
+        v_run = float(np.mean(interpolation_variance(g, run_t, edit_t_s, white_m2, edit_m2)))
+        v_loo = float(np.mean(held_out_variance(g, edit_t_s, picks, white_m2, edit_m2)))
+        ratio2 += wt * (v_run / v_loo if v_loo > 0 else 1.0)
+        kf_v += wt * interpolation_variance(g, kf_t, edit_t_s, white_m2, edit_m2) / max(v_run, 1e-300)
+    return float(np.sqrt(ratio2)), kf_v
+
+
 def calibration_of(model: str, scores: dict[str, float], f: float, bridge: tuple, kf_t_s: np.ndarray,
-                   edit_t_s: np.ndarray, d_m: np.ndarray | None, edit_sigma_m: float) -> Calibration:
+                   edit_t_s: np.ndarray, d_m: np.ndarray | None, edit_sigma_m: float,
+                   spacing: tuple[float, np.ndarray] | None = None) -> Calibration:
     """The calibration of the chosen model: the pose process and bridge (``bridge_ratio``), the
     fix's process and share (``d_m``: the fix's error at the sorted edit times), and the accuracy
-    the chosen model's held-out RMSE (``scores``) predicts along the run (module docstring 6)."""
+    the chosen model's held-out RMSE (``scores``) predicts along the run (module docstring 6:
+    ``spacing`` is ``spacing_ratio``'s R and band shape)."""
     _, fit_e, r_e, v_run = bridge
     floor = max(edit_sigma_m**2, 1e-4)
     gnss_fit, share = None, float("nan")
@@ -325,12 +465,13 @@ def calibration_of(model: str, scores: dict[str, float], f: float, bridge: tuple
         diff = r_e - r_g
         den = float(np.sum(diff**2))
         share = float(np.clip(np.sum(r_e * diff) / den, 0.0, 1.0)) if den > 0 else 0.0
-    shape = np.sqrt(np.maximum(v_run, 0.0))
-    predicted = scores[model] * model_scale(model, f)
+    ratio, kf_v = spacing if spacing is not None else (1.0, np.ones(len(kf_t_s)))
+    predicted = scores[model] * (float(np.sqrt(ratio)) if model == "plain" else ratio)
+    shape = np.sqrt(np.maximum(kf_v, 0.0))
     if model == "plain" or not np.any(shape > 0):
         sigma_h = np.full(len(kf_t_s), predicted)
-    else:
-        sigma_h = shape * predicted / float(np.sqrt(np.mean(shape**2)))
+    else:  # kf_v is V over its mean over the samples: the band's RMS over the run is the prediction
+        sigma_h = shape * predicted
     return Calibration(model=model, cv_rmse_m=scores[model], cv_rmse_by_model=dict(scores),
                        predicted_rmse_m=float(predicted), gnss_share=share, n_edits=len(edit_t_s),
-                       pose=fit_e, gnss=gnss_fit, sigma_m=sigma_h)
+                       pose=fit_e, gnss=gnss_fit, sigma_m=sigma_h, spacing_ratio=float(ratio))

@@ -8,7 +8,8 @@ vouch for itself; naive interpolation by interpolating the others):
     r_k = p^_k,-k - c_k,        CV RMSE = sqrt(mean_k |r_k|^2)
 
 and ``calibrate.choose`` keeps the calibrated model unless another predicts better, on the
-run-wide scale, by more than the held-out noise allows.
+run-wide scale, by more than the held-out noise allows.  The chosen model's reported accuracy
+is its held-out RMSE carried to the real spacing (``calibrate.spacing_ratio``, section 6).
 
 Cost: only the first engine model (``gnss``; without raw GNSS ``relative``) is solved by
 Levenberg-Marquardt. The others (``plain``, ``relative``) differ from it by metres in position
@@ -38,7 +39,9 @@ from posefix.engine.calibrate import (
     candidates,
     choose,
     held_out_picks,
+    pose_jitter_m2,
     prior_calibration,
+    spacing_ratio,
 )
 from posefix.engine.naive import naive_held_out, naive_solution
 from posefix.engine.results import Solution
@@ -97,7 +100,9 @@ def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: 
     if problem.g_enu_m is not None:
         g = problem.g_enu_m[index]
         d = edit_offsets(t_kf, p_rep, np.where(np.all(np.isfinite(g), axis=1)[:, None], g, np.nan), e, c)[:, :2]
-    calib = calibration_of(model, scores, bridge[0], bridge, t_kf, t_kf[e], d, problem.cfg.user.sigma_h_m)
+    spacing = spacing_ratio(problem.run.t_s, t_kf, t_kf[e], y, np.sort(rank[picks]), problem.cfg.user.sigma_h_m,
+                            _pose_jitter(problem))
+    calib = calibration_of(model, scores, bridge[0], bridge, t_kf, t_kf[e], d, problem.cfg.user.sigma_h_m, spacing)
     if model == "naive":
         return naive_solution(problem, *args, flags, calib)
     sol = solved[model]
@@ -106,6 +111,14 @@ def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: 
         # location term the height is held only where it starts
         sol = problem.solve_rows(*args, warm_start, flags, calibration=sol.drift.calibration)
     return dataclasses.replace(sol, drift=dataclasses.replace(sol.drift, calibration=calib))
+
+
+def _pose_jitter(problem) -> float:
+    """``calibrate.pose_jitter_m2`` of the run's reported horizontal positions, once per problem."""
+    key = ("pose_jitter",)
+    if key not in problem._static:
+        problem._static[key] = pose_jitter_m2(problem.p_enu_m[:, :2])
+    return problem._static[key]
 
 
 def with_linearisation(sol: Solution) -> Solution:
