@@ -245,3 +245,20 @@ def test_pose_jitter_is_the_white_part_of_the_pose_error():
     track = np.stack([12.0 * t, 200.0 * np.sin(t / 40.0)], axis=1)  # a vehicle turning, 10 Hz
     assert pose_jitter_m2(track) < 1e-3
     assert abs(pose_jitter_m2(track + rng.standard_normal(track.shape) * 0.3) - 0.09) < 0.1 * 0.09
+
+
+def test_the_band_is_pinned_at_the_edits_and_widest_between_them():
+    from posefix.engine.calibrate import spacing_ratio
+
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 3600.0, 1.0)
+    idx = np.arange(50, 3600, 100)
+    # a random walk well above the edits' noise (where that dominates, the error is largest at the
+    # edits themselves: between two, their noise averages)
+    y = np.cumsum(rng.standard_normal((len(t), 2)), axis=0)[idx] + rng.standard_normal((len(idx), 2)) * 0.5
+    ratio, band = spacing_ratio(t, t, t[idx], y, np.arange(len(idx)), 0.5)
+    sigma = np.sqrt(band)
+    assert 0.3 < ratio < 0.8
+    assert abs(np.sqrt(np.mean(band)) - 1.0) < 0.01  # RMS 1 along the run: scaled to the prediction
+    assert np.all(sigma[idx[1:-1]] < 0.6 * sigma[idx[1:-1] - 50])  # at an edit vs mid-way to the last
+    assert sigma[0] > sigma[idx[0]] and sigma[-1] > sigma[idx[-1]]  # beyond the end edits it grows again

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -71,6 +72,8 @@ def test_correct_then_evaluate_improves_the_run(simulated, tmp_path):
     out = tmp_path / "corrected.csv"
     res = ok("correct", simulated / "run.csv", "--edits", simulated / "edits.json", "--output", out)
     assert "corrected 6001 samples" in res.stdout and "solver:" in res.stdout
+    # the accuracy it reports is carried from the held-out edits to the edits' real spacing
+    assert re.search(r"predicted RMSE of the run \d+\.\d\d m \(the held-out RMSE x [01]\.\d\d: ", res.stdout), res.stdout
     before = json.loads(ok("evaluate", simulated / "truth.csv", simulated / "run.csv", "--json").stdout)
     after = json.loads(ok("evaluate", simulated / "truth.csv", out, "--json").stdout)
     assert after["horizontal"]["rmse_m"] < 0.5 * before["horizontal"]["rmse_m"]

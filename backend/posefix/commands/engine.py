@@ -230,8 +230,11 @@ def _calibration_line(calib) -> str:
         return (f"model: prior ({calib.n_edits} edit(s): too few to hold one out; the run stays as reported "
                 "away from the edits)")
     scores = ", ".join(f"{k} {v:.2f} m" for k, v in calib.cv_rmse_by_model.items() if math.isfinite(v))
+    ratio = getattr(calib, "spacing_ratio", float("nan"))
+    why = (f" (the held-out RMSE x {ratio:.2f}: a held-out edit is predicted across twice the edits' spacing)"
+           if math.isfinite(ratio) else "")
     return (f"model: {calib.model} (chosen by held-out edits; cross-validated RMSE at the edits: {scores}); "
-            f"predicted RMSE of the run {calib.predicted_rmse_m:.2f} m")
+            f"predicted RMSE of the run {calib.predicted_rmse_m:.2f} m{why}")
 
 
 # --------------------------------------------------------------------------- evaluate

@@ -354,6 +354,7 @@ SPACING_SHAPES = {  # module docstring 6: F(u) of the continuous part of the pos
 }
 SPACING_L_GRID_S = np.geomspace(10.0, 1e4, 25)
 RATIO_MAX_SAMPLES = 20_000  # the run's samples the mean over the run is taken on (evenly strided)
+JITTER_MAX_SAMPLES = 20_000  # second differences the jitter's median is taken on (evenly spread)
 
 
 def pose_jitter_m2(p_m: np.ndarray) -> float:
@@ -363,7 +364,8 @@ def pose_jitter_m2(p_m: np.ndarray) -> float:
     p = np.asarray(p_m, dtype=float)
     if len(p) < 3:
         return 0.0
-    d2 = p[2:] - 2.0 * p[1:-1] + p[:-2]
+    i = np.arange(0, len(p) - 2, max(1, -(-(len(p) - 2) // JITTER_MAX_SAMPLES)))
+    d2 = p[i + 2] - 2.0 * p[i + 1] + p[i]
     d2 = d2[np.all(np.isfinite(d2), axis=1)]
     if not len(d2):
         return 0.0
