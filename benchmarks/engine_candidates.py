@@ -10,8 +10,10 @@ half and the real drives, printed apart.  Per run and candidate (gnss, plain, re
     true: horizontal RMSE against the truth over every sample (edits every L seconds);
     CV:   RMSE of the leave-one-edit-out residuals (each a prediction across a gap of 2L),
           as ``engine.choose`` computes them;
-    ratio = true / CV: what the run-wide RMSE is of the held-out one.  The choice and the
-          predicted RMSE assume this ratio is alike across candidates (``calibrate.model_scale``).
+    ratio = true / CV: what the run-wide RMSE is of the held-out one.  The choice assumes this
+          ratio is alike across candidates (``calibrate.model_scale``); the reported prediction
+          is the chosen model's CV times R, the ratio the pose's fitted error process gives for
+          linear interpolation at the real spacing (``calibrate.spacing_ratio``, printed as R).
 
 and two alternatives to choosing one candidate:
 
@@ -78,7 +80,8 @@ def candidates_of(sim) -> dict:
     loo["naive"] = naive_held_out(t_kf[edit_kf], y, picks)
     chosen = problem.solve(edit_set(sim))
     return dict(truth=truth, pos=pos, loo=loo, m=m, chosen=chosen.drift.calibration.model,
-                predicted=chosen.drift.calibration.predicted_rmse_m, posefix=_positions(problem, chosen))
+                predicted=chosen.drift.calibration.predicted_rmse_m, spacing=chosen.drift.calibration.spacing_ratio,
+                posefix=_positions(problem, chosen))
 
 
 def row(name: str, every: float, seed, r: dict) -> dict:
@@ -95,7 +98,7 @@ def row(name: str, every: float, seed, r: dict) -> dict:
                posefix=_rmse(r["posefix"] - truth), predicted=r["predicted"], stack=stack, blend=blend, w=dict(zip(models, w)))
     cells = " ".join(f"{k[:5]:>5} {true[k]:5.2f}/{cv[k]:5.2f} ({true[k] / cv[k]:4.2f})" for k in models)
     print(f"   {name:>16} {seed!s:>4} {every:>4.0f}s {r['m']:>3} | {cells} | chose {r['chosen']:>8} {out['posefix']:5.2f} "
-          f"pred/true {out['predicted'] / out['posefix']:4.2f} "
+          f"pred/true {out['predicted'] / out['posefix']:4.2f} (R {r['spacing']:4.2f}) "
           f"| stack {stack:5.2f} [{' '.join(f'{v:.2f}' for v in w)}] | blend {blend:5.2f}", flush=True)
     return out
 
