@@ -12,7 +12,8 @@ from posefix.mapmatch import build_model, load_model, read_walk, save_model, tra
 from posefix.mapmatch.evaluate import mahalanobis2_at_waypoints
 from posefix.mapmatch.learn import learn_heading_bias, learn_walk_spread, waypoint_segments
 from posefix.mapmatch.model import WALK_HEADING_SD_RAD, WALK_SCALE_SD, ModelFormatError
-from posefix.mapmatch.tracker import WALK_NODES, _marginalise_walk, _row_covariances
+from posefix.mapmatch.modes import CONVERGED_MASS, CONVERGED_SIGMA_M, posterior_modes
+from posefix.mapmatch.tracker import WALK_NODES, _marginalise_walk, _row_covariances, walk_modes
 from posefix.mapmatch.viterbi import gaussian_summary
 
 FLOOR = Path(__file__).resolve().parents[2] / "data" / "indoor-site1-F1"
@@ -65,11 +66,32 @@ def test_marginalising_widens_the_ellipses_keeps_the_positions_with_or_without_a
     m2_mixed = mahalanobis2_at_waypoints(walk.waypoints, mixed, skip_first=True)
     assert np.median(m2_mixed) < np.median(m2_fixed)
     # Unknown start: the same marginalisation (a converged place is then as uncertain as the
-    # walk's heading and stride), the positions, modes and converged flags the central run's.
+    # walk's heading and stride), the positions the central run's; the modes are the mixture's
+    # and "converged" is judged on them and on the reported (marginalised) ellipse.
     unknown = track_walk(model, walk, start_xy_m=None)
     plain = track_walk(model, walk, start_xy_m=None, walk_spread=(0.0, 0.0))
-    assert np.allclose(unknown.p_xy_m, plain.p_xy_m) and np.array_equal(unknown.converged, plain.converged)
+    assert np.allclose(unknown.p_xy_m, plain.p_xy_m)
     assert not np.allclose(unknown.sigma_major_m, plain.sigma_major_m)  # marginalised, not off
+    assert np.allclose([m.sigma_major_m for m in unknown.modes], unknown.sigma_major_m)
+    assert np.array_equal(unknown.converged, [m.mass[0] >= CONVERGED_MASS and m.sigma_major_m <= CONVERGED_SIGMA_M
+                                              for m in unknown.modes])
+
+
+def test_a_place_only_the_calibrated_heading_finds_is_not_converged():
+    # The walk's marginalised posterior is the mixture over its heading and stride nodes: if the
+    # central node is sure of one place and a turned node of another 30 m away, it is two places.
+    xx, yy = np.meshgrid(np.arange(80) * 0.8, np.arange(40) * 0.8)
+    p = np.column_stack([xx.ravel(), yy.ravel()])
+    blob = lambda c: np.exp(-0.5 * np.sum((p - np.asarray(c)) ** 2, axis=1) / 1.5**2)  # noqa: E731
+    central, turned = blob((10, 15)) / blob((10, 15)).sum(), blob((40, 15)) / blob((40, 15)).sum()
+    assert posterior_modes(p, central).converged
+    w = WALK_NODES[:, 2] / WALK_NODES[:, 2].sum()
+    mix = w[0] * central + w[1] * turned + (1.0 - w[0] - w[1]) * central
+    m = walk_modes(p, mix, 2.0)
+    assert m.n == 2 and not m.converged and m.mass[0] == pytest.approx(1.0 - w[1], abs=0.005)  # within the 99.5 % support
+    # One place, but the reported ellipse (the mixture's spread about the centre) is a wing.
+    assert walk_modes(p, central, 2.0).converged and not walk_modes(p, central, 6.0).converged
+    assert walk_modes(p, central, 6.0).sigma_major_m == 6.0
 
 
 def test_walk_spread_is_the_rms_of_each_walks_offset_and_log_scale():

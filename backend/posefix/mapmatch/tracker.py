@@ -32,7 +32,7 @@ import numpy as np
 
 from posefix.mapmatch.features import (FeatureSigmas, capped_information, evidence_share, f_gaussian_position,
                                        f_robust_position, f_step)
-from posefix.mapmatch.modes import posterior_modes
+from posefix.mapmatch.modes import CONVERGED_MASS, CONVERGED_SIGMA_M, Modes, posterior_modes
 from posefix.mapmatch.viterbi import ForwardFilter, GaussianSummary, ViterbiFilter, forward_backward, gaussian_summary
 
 __all__ = ["TrackPoint", "Tracker", "TrackResult", "track_walk", "smooth", "start_log_prior"]
@@ -299,14 +299,17 @@ class Tracker:
         return self.forward.log_evidence() - self._trans_log_norm
 
 
-def smooth(tracker: Tracker, with_modes: bool = False):
+def smooth(tracker: Tracker, with_modes: bool = False, gamma_out: list | None = None):
     """Offline smoothing of everything a tracker has seen: forward-backward marginals
     p(y_t | all steps) over the same scores, returned as posterior means (T+1, 2) — the
     minimum mean-squared-error positions — and their Gaussian summaries (and, with
-    ``with_modes``, each marginal's :class:`posefix.mapmatch.modes.Modes` third)."""
+    ``with_modes``, each marginal's :class:`posefix.mapmatch.modes.Modes` third).
+    ``gamma_out``: a list the marginals (T+1, V) are appended to."""
     g = tracker.graph
     fb = forward_backward(g, tracker.log_prior, np.asarray(tracker.trans_rows).reshape(-1, g.offsets.shape[0]),
                           tracker.state_rows, beam=tracker.model.beam)
+    if gamma_out is not None:
+        gamma_out.append(fb.gamma)
     sums, modes = [], []
     for row in fb.gamma:
         with np.errstate(divide="ignore"):
@@ -364,6 +367,8 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     passes over every live vertex offline; it is what keeps a converged ellipse honest there:
     once the place is found the walk's own heading and stride dominate the error.
     """
+    import time
+
     from posefix.mapmatch.calibrate import SIGMA_A, apply_step_correction, estimate_step_correction
     from posefix.mapmatch.sensors import steps_from_walk
 
@@ -372,7 +377,9 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     steps = steps_from_walk(walk, heading=heading)
     vec = steps.vectors_m(model.step_model)
     obs = _walk_observations(model, walk, steps, start_xy_m, fingerprints)
-    first = _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s)
+    central_gamma: list = []  # the latest central run's smoothed marginals (for the mixture's modes)
+    first = _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s,
+                        gamma_out=central_gamma)
     res, a, extra_s = first, 1.0 + 0j, 0.0
     if walk_spread is None:
         walk_spread = (model.walk_heading_sd_rad, model.walk_scale_sd)
@@ -388,20 +395,31 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
             if abs(a_new - a) < 0.005:
                 break
             a = a_new / abs(a_new) if heading_only else a_new
+            del central_gamma[:]
             res = _track_pass(model, walk, steps, apply_step_correction(vec, a), obs, start_xy_m, estimate, None,
-                              wifi_corr_s)
+                              wifi_corr_s, gamma_out=central_gamma)
             extra_s += res.offline_time_per_step_s
     if estimate == "mean" and np.any(sd > 0.0) and len(steps) >= 2:
         runs = []
-        for dh, dk, _ in WALK_NODES:
+        w = WALK_NODES[:, 2] / WALK_NODES[:, 2].sum()
+        mix = None  # Σ_h w_h γ_h: the walk-marginalised posterior over places, row by row
+        for (dh, dk, _), wh in zip(WALK_NODES, w):
             if dh == 0.0 and dk == 0.0:
                 runs.append(res)
-                continue
-            turn = a * np.exp(dk * sd[1] + 1j * dh * sd[0])
-            runs.append(_track_pass(model, walk, steps, apply_step_correction(vec, turn), obs, start_xy_m, estimate,
-                                    None, wifi_corr_s, light=True))
-            extra_s += runs[-1].offline_time_per_step_s
+                g = central_gamma[-1]
+            else:
+                turn = a * np.exp(dk * sd[1] + 1j * dh * sd[0])
+                node_gamma: list = []
+                runs.append(_track_pass(model, walk, steps, apply_step_correction(vec, turn), obs, start_xy_m,
+                                        estimate, None, wifi_corr_s, light=True, gamma_out=node_gamma))
+                extra_s += runs[-1].offline_time_per_step_s
+                g = node_gamma[0]
+            mix = wh * g if mix is None else mix + wh * g
+        tic = time.process_time()
         res = _marginalise_walk(runs, WALK_NODES[:, 2])
+        res = replace(res, modes=tuple(walk_modes(model.graph.p_xy_m, row, s)
+                                       for row, s in zip(mix, res.sigma_major_m)))
+        extra_s += (time.process_time() - tic) / max(len(steps), 1)
     return replace(res, online_xy_m=first.online_xy_m, dr_xy_m=first.dr_xy_m, time_per_step_s=first.time_per_step_s,
                    offline_time_per_step_s=first.offline_time_per_step_s + extra_s, step_correction=a)
 
@@ -412,6 +430,17 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
 WALK_NODES = np.array([[0.0, 0.0, 1.0 / 3.0],
                        [-np.sqrt(3.0), 0.0, 1.0 / 6.0], [np.sqrt(3.0), 0.0, 1.0 / 6.0],
                        [0.0, -np.sqrt(3.0), 1.0 / 6.0], [0.0, np.sqrt(3.0), 1.0 / 6.0]])
+
+
+def walk_modes(p_xy_m: np.ndarray, prob: np.ndarray, sigma_major_m: float) -> Modes:
+    """Modes of a walk-marginalised marginal ``prob`` (V,) (the mixture over the quadrature
+    nodes of the walk's heading offset and stride), judged on what is reported: rule (1) of
+    :mod:`posefix.mapmatch.modes` on the mixture (a place that only the calibrated heading
+    finds is not one place), rule (2) on the reported ellipse's 1σ major semi-axis
+    ``sigma_major_m`` (the mixture's spread about the reported position)."""
+    m = posterior_modes(p_xy_m, prob)
+    return replace(m, sigma_major_m=float(sigma_major_m),
+                   converged=bool(m.mass[0] >= CONVERGED_MASS and sigma_major_m <= CONVERGED_SIGMA_M))
 
 
 def _row_covariances(res: TrackResult) -> np.ndarray:
@@ -464,11 +493,12 @@ def walk_log_evidence(model, walk, steps, vec, obs, start_xy_m, wifi_corr_s=None
 
 
 def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wifi_corr_s,
-                light: bool = False) -> TrackResult:
+                light: bool = False, gamma_out: list | None = None) -> TrackResult:
     """One run of the tracker over a walk's step vectors ``vec`` (see :func:`track_walk`).
     ``light`` (a quadrature node of :func:`_marginalise_walk`, which reads only the smoothed
     positions and ellipses): no live filter, no per-step summaries, no modes (``modes`` empty,
-    ``online_xy_m`` the dead reckoning)."""
+    ``online_xy_m`` the dead reckoning). ``gamma_out``: a list the smoothed marginals are
+    appended to (``"mean"`` only)."""
     import time
 
     wifi_at, peak_at, start_wifi, start_wifi_t, walk_corr = obs
@@ -498,9 +528,9 @@ def _track_pass(model, walk, steps, vec, obs, start_xy_m, estimate, on_step, wif
     modes: list = []
     if estimate == "mean" and len(steps):
         if light:
-            p_out, pts = smooth(tr)
+            p_out, pts = smooth(tr, gamma_out=gamma_out)
         else:
-            p_out, pts, modes = smooth(tr, with_modes=True)
+            p_out, pts, modes = smooth(tr, with_modes=True, gamma_out=gamma_out)
     if cols is not None or not len(steps):
         modes = [posterior_modes(tr.p_xy_m, c) for c in (cols or [np.exp(tr.column())])]
     total_s = time.process_time() - tic
