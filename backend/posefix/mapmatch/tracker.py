@@ -365,7 +365,8 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
     (``walk_heading_sd_rad``, ``walk_scale_sd``). With an unknown start the EM prior stays
     :data:`posefix.mapmatch.calibrate.SIGMA_A`, and the marginalisation costs four more whole
     passes over every live vertex offline; it is what keeps a converged ellipse honest there:
-    once the place is found the walk's own heading and stride dominate the error.
+    once the place is found the walk's own heading and stride dominate the error. The modes
+    and "converged" of each row are then the marginalised posterior's (:func:`walk_modes`).
     """
     import time
 
@@ -414,7 +415,10 @@ def track_walk(model, walk, start_xy_m: tuple[float, float] | None = None, finge
                                         estimate, None, wifi_corr_s, light=True, gamma_out=node_gamma))
                 extra_s += runs[-1].offline_time_per_step_s
                 g = node_gamma[0]
-            mix = wh * g if mix is None else mix + wh * g
+            if mix is None:
+                mix = wh * g
+            else:
+                mix += wh * g
         tic = time.process_time()
         res = _marginalise_walk(runs, WALK_NODES[:, 2])
         res = replace(res, modes=tuple(walk_modes(model.graph.p_xy_m, row, s)
@@ -466,7 +470,8 @@ def _marginalise_walk(runs: list[TrackResult], weights: np.ndarray) -> TrackResu
     mean: a turned or stretched walk that ends in the wrong corridor would drag it. The weights
     are the prior's, not the walk's evidence: the evidence counts every step's error as
     independent too, so it picks one offset far more confidently than it should. Vertex path,
-    modes and converged are the central run's."""
+    modes and converged are the central run's (:func:`track_walk` replaces the modes with
+    :func:`walk_modes` of the mixture of the runs' marginals)."""
     w = np.asarray(weights, dtype=float) / np.sum(weights)
     centre = runs[int(np.argmax(w))]
     mu = centre.p_xy_m
