@@ -26,9 +26,10 @@ Rows (errors at the surveyed waypoints, metres):
   WiFi alone          the survey's k-NN position of every scan against the straight-line truth;
                       split by whether the truth is within 3 m of a survey scan (coverage)
   converged           share of waypoints where the unknown-start posterior reports converged
-                      (one mode holding >= 95 % of the smoothed marginal's mass and its 1σ at most
-                      5 m: posefix.mapmatch.modes; never from the Viterbi path), the error
-                      there, and walks converged at their last step
+                      (one mode holding >= 95 % of the walk-marginalised smoothed marginal's mass
+                      and the reported 1σ at most 5 m: posefix.mapmatch.tracker.walk_modes;
+                      never from the Viterbi path), the error there, and walks converged at
+                      their last step
   2σ coverage         share of waypoints inside the reported 2σ ellipse (86 % if honest)
   ms/step             CPU time of one process for the online step (one core)
 
