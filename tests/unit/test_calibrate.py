@@ -215,7 +215,7 @@ def _naive_prediction(rng, t, err, every_s, n_max=None):
     picks = held_out_picks(len(te), n_max or CV_MAX_HELD_OUT)
     cv = np.sqrt(np.mean(np.sum(naive_held_out(te, y, picks) ** 2, axis=1)))
     ratio, band = spacing_ratio(t, t, te, y, picks, 0.5)
-    assert abs(np.mean(band) - 1.0) < 1e-6  # V over its run mean: RMS 1 along the run
+    assert abs(np.mean(band) - 1.0) < 0.03  # V over its run mean (on at most 5,000 samples): RMS 1 along the run
     return true, cv * ratio, cv
 
 
@@ -262,3 +262,14 @@ def test_the_band_is_pinned_at_the_edits_and_widest_between_them():
     assert abs(np.sqrt(np.mean(band)) - 1.0) < 0.01  # RMS 1 along the run: scaled to the prediction
     assert np.all(sigma[idx[1:-1]] < 0.6 * sigma[idx[1:-1] - 50])  # at an edit vs mid-way to the last
     assert sigma[0] > sigma[idx[0]] and sigma[-1] > sigma[idx[-1]]  # beyond the end edits it grows again
+
+
+def test_held_out_variance_is_the_interpolation_variance_without_the_edit_plus_its_noise():
+    from posefix.engine.calibrate import held_out_variance, interpolation_variance
+
+    rng = np.random.default_rng(6)
+    te = np.cumsum(rng.uniform(20.0, 200.0, 9))
+    for g in (lambda h: 0.02 * np.abs(h), lambda h: 9.0 * (1 - (1 + np.abs(h) / 80.0) * np.exp(-np.abs(h) / 80.0))):
+        picks = np.arange(len(te))
+        one_by_one = [interpolation_variance(g, te[k:k + 1], np.delete(te, k), 0.1, 0.25)[0] + 0.25 for k in picks]
+        assert np.allclose(held_out_variance(g, te, picks, 0.1, 0.25), one_by_one)
