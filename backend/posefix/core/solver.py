@@ -390,8 +390,13 @@ def _hold_in_band(ab: np.ndarray, fixed: np.ndarray) -> None:
     ab[BAND_U, cols] = 1.0
     # its coupling to the next keyframe: entry (6h + r, 6(h + 1) + c) sits in band row BAND_U - 6 + r - c
     nxt = h[h + 1 < len(fixed)]
-    r, c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
-    ab[(BAND_U - 6 + r - c).ravel()[None, :], 6 * (nxt[:, None] + 1) + c.ravel()[None, :]] = 0.0
+    ab[_NEXT_BAND_ROWS[None, :], 6 * (nxt[:, None] + 1) + _NEXT_COLS[None, :]] = 0.0
+
+
+# band rows and column offsets of a keyframe's coupling block to the next one (``_hold_in_band``)
+_r, _c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+_NEXT_BAND_ROWS, _NEXT_COLS = (BAND_U - 6 + _r - _c).ravel(), _c.ravel()
+del _r, _c
 
 
 def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: np.ndarray,
