@@ -401,7 +401,7 @@ del _r, _c
 
 def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: np.ndarray,
                      x_start: np.ndarray, fixed, max_steps: int, step_tol_m: float,
-                     step_axes: int = 3) -> tuple[np.ndarray | None, int]:
+                     step_axes: int = 3, chord_after_m: float | None = None) -> tuple[np.ndarray | None, int]:
     """Inner loop of ``solve_local_newton``: every term but location by its model at ``x_lin``
     (J^T J as band ab_c (12, 6n), Fortran order, and gradient g_c there), from ``x_start``."""
     loc_idx = terms.loc_idx
@@ -425,6 +425,8 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
     g_flat = (6 * li[:, None] + np.arange(3)[None, :]).ravel()
     fixed_rows = None if fixed is None else (6 * np.flatnonzero(fixed)[:, None] + np.arange(6)[None, :]).ravel()
     x = x_start.copy()
+    if chord_after_m is None:
+        chord_after_m = CHORD_AFTER_STEPS * step_tol_m
     factor, last = None, np.inf  # Cholesky factor of the last Newton matrix; size of the last step (m)
     for step in range(1, max_steps + 1):
         if len(free):
@@ -438,7 +440,7 @@ def _newton_on_model(terms: T.Terms, ab_c: np.ndarray, g_c: np.ndarray, x_lin: n
         if fixed_rows is not None:
             g[fixed_rows] = 0.0
         try:
-            if factor is None or (len(free) and last > CHORD_AFTER_STEPS * step_tol_m):
+            if factor is None or (len(free) and last > chord_after_m):
                 ab = ab_s.copy(order="F")
                 if len(free):
                     ab.reshape(-1, order="F")[band_flat] += H_loc.reshape(-1, 9)[free[:, None], tri].ravel()
@@ -470,6 +472,7 @@ def solve_local_newton(
     linearisation: WindowModel | None = None,
     cost_before: dict[str, float] | None = None,
     step_axes: int = 3,
+    chord_after_m: float | None = None,
 ) -> tuple[np.ndarray, SolverResult] | None:
     """Newton steps from a warm start with only the location term re-linearised (one more edit).
 
@@ -500,6 +503,9 @@ def solve_local_newton(
     ``step_axes`` 2: a step's size is measured east/north only (for a caller that reads the
     horizontal answer alone: without a location term the height of a long run is pinned by
     a hair of damping only, and round-off moves it by centimetres at every step).
+    ``chord_after_m``: chord steps once a step is under this many metres (default
+    ``CHORD_AFTER_STEPS`` step tolerances; np.inf: from the second step on, Newton steps
+    again only where one does not halve the last).
 
     Returns None when the steps do not settle within ``max_steps`` or do not lower the
     cost (a far start: use ``solve_banded``).  ``fixed`` holds keyframes at ``x0``.
@@ -522,7 +528,8 @@ def solve_local_newton(
                 before = ev.costs()
             D, U, g_c = T.normal_equations(terms, ev, location=False)
             ab_c = np.asfortranarray(pack_banded(D, U))
-        x, n = _newton_on_model(terms, ab_c, g_c, x_lin, x, fixed, max_steps - steps, step_tol_m, step_axes)
+        x, n = _newton_on_model(terms, ab_c, g_c, x_lin, x, fixed, max_steps - steps, step_tol_m, step_axes,
+                                chord_after_m)
         if x is None:
             return None
         steps += n

@@ -416,8 +416,10 @@ class Problem:
         elif newton and same_rows and warm_sol.linearisation is not None and cfg.solver.method == "banded" \
                 and warm_sol.linearisation.matches(terms):
             lin = warm_sol.linearisation
+            # chord steps from the second on: a whole run's factorisation is the step's main cost,
+            # and the location term's Hessian changes little as the fixes' robust weights settle
             out = solve_local_newton(terms, x0, max_steps=NEWTON_MAX_STEPS, linearisation=lin.window(0, len(act_rows) - 1),
-                                     step_axes=2)
+                                     step_axes=2, chord_after_m=np.inf)
             if out is not None:
                 x, result = out
         if result is None:
