@@ -53,7 +53,11 @@ Data, per horizontal axis, at the edit times t_k (sorted): the pose's error at t
    at the held-out edits gives f = sqrt(mean_i V_i / mean_k V_loo,k) (a random walk:
    1/sqrt 3), kept in [0.5, 1].  The plain location term's error follows the fixes between the
    edits and is pinned at them: half bridged, s = sqrt(f) (between f and an error spread evenly,
-   1).  Each candidate's run-wide RMSE is predicted as s_m times its held-out RMSE, and the
+   1).  Edits that carry their own sigma (``Edit.sigma_m``, a crowd's fused positions) are
+   observed with that noise in the band, and naive interpolation, which passes each edit's
+   noise straight through (full at the edits, where the smoother averages it), gets its own
+   ratio from its interpolation weights (``naive_ratio``); an operator's clicks (no sigma) keep
+   f for naive too.  Each candidate's run-wide RMSE is predicted as s_m times its held-out RMSE, and the
    models are compared on that scale (``choose``): the calibrated model stands unless another's
    paired gain in scaled squared error d_k = s_inc^2 |r_k,inc|^2 - s_m^2 |r_k,m|^2 has a mean
    above ``SWITCH_Z`` standard errors (this scale serves the comparison; the reported
@@ -261,11 +265,13 @@ def fit_processes(h: np.ndarray, gamma: np.ndarray, n: np.ndarray, floor_m2: flo
     return fits
 
 
-def loo_residuals(t_s: np.ndarray, y: np.ndarray, fit: ProcessFit) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def loo_residuals(t_s: np.ndarray, y: np.ndarray, fit: ProcessFit,
+                  r_m2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Leave-one-out residuals (m,d) and predictive variances (m,) of a process observed at the
-    edits (module docstring 2), with the smoothed means (m,d) and variances (m,)."""
-    R = fit.nugget_m2
-    xs, P = smooth_gauss_markov(t_s, y, np.full(len(t_s), R), fit.sigma2_m2, fit.tau_s)
+    edits (module docstring 2), with the smoothed means (m,d) and variances (m,).  ``r_m2`` (m,):
+    each edit's own observation variance (default: the fit's nugget for all)."""
+    R = fit.nugget_m2 if r_m2 is None else np.asarray(r_m2, dtype=float)
+    xs, P = smooth_gauss_markov(t_s, y, np.broadcast_to(R, (len(t_s),)), fit.sigma2_m2, fit.tau_s)
     P = np.minimum(P, R * (1.0 - 1e-9))  # P < R always holds; guards round-off
     gain = R / (R - P)
     r = (y - xs) * gain[:, None]
@@ -308,12 +314,15 @@ def held_out_picks(m: int, n_max: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, m - 1, min(n_max, m))).astype(np.int64))
 
 
-def model_scale(model: str, f: float) -> float:
-    """Run-wide RMSE over held-out RMSE of a model (module docstring 5): f bridged, sqrt(f) plain."""
+def model_scale(model: str, f: float, f_naive: float | None = None) -> float:
+    """Run-wide RMSE over held-out RMSE of a model (module docstring 5): f bridged, sqrt(f) plain;
+    naive interpolation its own ratio when edits carry their noise (``naive_ratio``)."""
+    if model == "naive" and f_naive is not None:
+        return f_naive
     return float(np.sqrt(f)) if model == "plain" else f
 
 
-def choose(residuals: dict[str, np.ndarray], f: float) -> str:
+def choose(residuals: dict[str, np.ndarray], f: float, f_naive: float | None = None) -> str:
     """The model the held-out edits choose from each candidate's held-out residuals (n,2).
 
     The calibrated model (``gnss``; without GNSS ``relative``) stands unless another predicts
@@ -322,7 +331,7 @@ def choose(residuals: dict[str, np.ndarray], f: float) -> str:
     mean above ``SWITCH_Z`` standard errors.
     """
     incumbent = "gnss" if "gnss" in residuals else "relative" if "relative" in residuals else next(iter(residuals))
-    err = {name: model_scale(name, f) ** 2 * np.sum(r**2, axis=1) for name, r in residuals.items()}
+    err = {name: model_scale(name, f, f_naive) ** 2 * np.sum(r**2, axis=1) for name, r in residuals.items()}
     best, best_mse = incumbent, float(np.mean(err[incumbent]))
     for name, e in err.items():
         if name == incumbent:
@@ -335,14 +344,17 @@ def choose(residuals: dict[str, np.ndarray], f: float) -> str:
 
 
 def bridge_ratio(kf_t_s: np.ndarray, edit_t_s: np.ndarray, y_m: np.ndarray, picks: np.ndarray,
-                 edit_sigma_m: float) -> tuple[float, ProcessFit, np.ndarray, np.ndarray]:
+                 edit_sigma_m: float | np.ndarray) -> tuple[float, ProcessFit, np.ndarray, np.ndarray]:
     """f of module docstring 5 from the pose's error at the sorted edits ``y_m`` (m,2), with the
-    pose process, its leave-one-out residuals and the bridged variance along the run (k,)."""
-    floor = max(edit_sigma_m**2, 1e-4)
+    pose process, its leave-one-out residuals and the bridged variance along the run (k,).
+    ``edit_sigma_m``: the edits' horizontal 1-sigma, one for all or (m,) each (sorted)."""
+    floor_e = np.maximum(np.asarray(edit_sigma_m, dtype=float) ** 2, 1e-4)
+    floor = float(floor_e) if floor_e.ndim == 0 else float(np.mean(floor_e))
     fit_e, _, r_e, _, _, _ = best_process(edit_t_s, y_m, floor)
     # the band's shape: the fitted process observed with the edits' own noise (the engine holds
     # each edit to its sigma), so V at an edit is what the edits either side leave of it
-    _, V_e, xs_e, P_e = loo_residuals(edit_t_s, y_m, dataclasses.replace(fit_e, nugget_m2=floor))
+    _, V_e, xs_e, P_e = loo_residuals(edit_t_s, y_m, dataclasses.replace(fit_e, nugget_m2=floor),
+                                      None if floor_e.ndim == 0 else floor_e)
     _, v_run = bias_at(kf_t_s, edit_t_s, xs_e, P_e, fit_e.sigma2_m2, fit_e.tau_s)
     f = float(np.clip(np.sqrt(np.mean(v_run) / max(float(np.mean(V_e[picks])), 1e-12)), 0.5, 1.0)) if len(picks) else 1.0
     return f, fit_e, r_e, v_run
@@ -462,15 +474,33 @@ def spacing_ratio(run_t_s: np.ndarray, kf_t_s: np.ndarray, edit_t_s: np.ndarray,
     return float(np.sqrt(ratio2)), kf_v
 
 
+def naive_ratio(kf_t_s: np.ndarray, edit_t_s: np.ndarray, fit: ProcessFit, edit_m2: float, picks: np.ndarray) -> float:
+    """Run-wide over held-out RMSE of naive interpolation (module docstring 5) when the edits
+    carry their noise (``edit_m2`` per axis): V(t) over the keyframes and V_k at the held-out
+    edits of module docstring 6 (``interpolation_variance``, ``held_out_variance``) for the pose
+    process ``fit`` without its nugget (the edits' noise is explicit), kept in [0.5, 1] as f is.
+    Naive interpolation passes each edit's noise straight through, in full at the edits, where
+    the smoother averages it; with the smoother's f it would look as if its edits were exact."""
+    if len(edit_t_s) < 2 or not len(picks):
+        return 1.0
+
+    def g(lag):
+        return -fit.sigma2_m2 * np.expm1(-np.abs(lag) / fit.tau_s)
+
+    v_run = float(np.mean(interpolation_variance(g, kf_t_s, edit_t_s, 0.0, edit_m2)))
+    v_loo = float(np.mean(held_out_variance(g, edit_t_s, picks, 0.0, edit_m2)))
+    return float(np.clip(np.sqrt(v_run / max(v_loo, 1e-12)), 0.5, 1.0))
+
+
 def calibration_of(model: str, scores: dict[str, float], f: float, bridge: tuple, kf_t_s: np.ndarray,
-                   edit_t_s: np.ndarray, d_m: np.ndarray | None, edit_sigma_m: float,
+                   edit_t_s: np.ndarray, d_m: np.ndarray | None, edit_sigma_m: float | np.ndarray,
                    spacing: tuple[float, np.ndarray] | None = None) -> Calibration:
     """The calibration of the chosen model: the pose process and bridge (``bridge_ratio``), the
     fix's process and share (``d_m``: the fix's error at the sorted edit times), and the accuracy
     the chosen model's held-out RMSE (``scores``) predicts along the run (module docstring 6:
     ``spacing`` is ``spacing_ratio``'s R and band shape)."""
     _, fit_e, r_e, v_run = bridge
-    floor = max(edit_sigma_m**2, 1e-4)
+    floor = float(np.mean(np.maximum(np.asarray(edit_sigma_m, dtype=float) ** 2, 1e-4)))
     gnss_fit, share = None, float("nan")
     if d_m is not None and np.all(np.isfinite(d_m)):
         gnss_fit, _, r_g, _, _, _ = best_process(edit_t_s, d_m, floor)

@@ -39,6 +39,7 @@ from posefix.engine.calibrate import (
     candidates,
     choose,
     held_out_picks,
+    naive_ratio,
     pose_jitter_m2,
     prior_calibration,
     spacing_ratio,
@@ -48,7 +49,8 @@ from posefix.engine.results import Solution
 
 
 def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: np.ndarray, edit_has_alt: np.ndarray,
-                     deleted_kf: np.ndarray, warm_start=None, flags: list[Refusal] | None = None) -> Solution:
+                     deleted_kf: np.ndarray, warm_start=None, flags: list[Refusal] | None = None,
+                     edit_sigma_m: np.ndarray | None = None) -> Solution:
     """A full solve with the model the run's own held-out edits choose (``engine.calibrate``).
 
     Each candidate is scored on up to ``CV_MAX_HELD_OUT`` held-out edits (the engine's models
@@ -62,7 +64,8 @@ def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: 
     m = len(edit_kf)
     args = (index, edit_kf, edit_c_m, edit_has_alt, deleted_kf)
     if m < MIN_EDITS:
-        return problem.solve_rows(*args, warm_start, flags, calibration=prior_calibration(m) if m else None)
+        return problem.solve_rows(*args, warm_start, flags, calibration=prior_calibration(m) if m else None,
+                                  edit_sigma_m=edit_sigma_m)
     picks = held_out_picks(m, CV_MAX_HELD_OUT)
     t_kf = problem.run.t_s[index]
     order = np.argsort(t_kf[edit_kf], kind="stable")  # edits in time order for the process fits
@@ -71,7 +74,12 @@ def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: 
     p_rep = problem.p_enu_m[index]
     e, c = edit_kf[order], edit_c_m[order]
     y = p_rep[e, :2] - c[:, :2]
-    bridge = bridge_ratio(t_kf, t_kf[e], y, rank[picks], problem.cfg.user.sigma_h_m)
+    # the edits' noise: the configured sigma for all (operators' clicks), else each edit's own
+    sigma_e = problem.cfg.user.sigma_h_m if edit_sigma_m is None else problem.edit_sigma_h(edit_sigma_m)[order]
+    bridge = bridge_ratio(t_kf, t_kf[e], y, rank[picks], sigma_e)
+    # edits that carry their noise: naive interpolation passes it through, scaled on its own
+    sigma_rms = problem.cfg.user.sigma_h_m if edit_sigma_m is None else float(np.sqrt(np.mean(np.square(sigma_e))))
+    f_naive = None if edit_sigma_m is None else naive_ratio(t_kf, t_kf[e], bridge[1], sigma_rms**2, rank[picks])
     solved, residuals = {}, {}
     base = None  # the first engine model's full solve (with its linearisation): the others start from it
     for name in candidates(problem.cfg.calibration.model, problem.g_enu_m is not None):
@@ -80,29 +88,29 @@ def solve_calibrated(problem, index: np.ndarray, edit_kf: np.ndarray, edit_c_m: 
             continue
         calib = Calibration(model=name, cv_rmse_m=float("nan"))
         if base is None:
-            sol = problem.solve_rows(*args, warm_start, flags, calibration=calib)
+            sol = problem.solve_rows(*args, warm_start, flags, calibration=calib, edit_sigma_m=edit_sigma_m)
             base = with_linearisation(sol)
         else:
             # another model's answer lies metres from the first's with the orientations within a
             # milliradian: Newton steps on the first's model of the relative and gravity terms
             # reach it (within a millimetre) for a fraction of a Levenberg-Marquardt solve
-            sol = problem.solve_rows(*args, base, flags, calibration=calib, newton=True)
+            sol = problem.solve_rows(*args, base, flags, calibration=calib, newton=True, edit_sigma_m=edit_sigma_m)
         solved[name] = sol
         r = None
         if name in ("plain", "relative"):  # no drift model, no bends: one model serves every held-out edit
             if sol.linearisation is not None and not np.array_equal(sol.linearisation.x_lin, sol.x):
                 sol = with_linearisation(dataclasses.replace(sol, linearisation=None))
             r = held_out_fixed_terms(with_linearisation(sol), edit_kf, picks)
-        residuals[name] = r if r is not None else held_out_residuals(problem, sol, *args, picks)
+        residuals[name] = r if r is not None else held_out_residuals(problem, sol, *args, picks, edit_sigma_m=edit_sigma_m)
     scores = {name: float(np.sqrt(np.mean(np.sum(r**2, axis=1)))) for name, r in residuals.items()}
-    model = choose(residuals, bridge[0])
+    model = choose(residuals, bridge[0], f_naive)
     d = None
     if problem.g_enu_m is not None:
         g = problem.g_enu_m[index]
         d = edit_offsets(t_kf, p_rep, np.where(np.all(np.isfinite(g), axis=1)[:, None], g, np.nan), e, c)[:, :2]
-    spacing = spacing_ratio(problem.run.t_s, t_kf, t_kf[e], y, np.sort(rank[picks]), problem.cfg.user.sigma_h_m,
+    spacing = spacing_ratio(problem.run.t_s, t_kf, t_kf[e], y, np.sort(rank[picks]), sigma_rms,
                             _pose_jitter(problem))
-    calib = calibration_of(model, scores, bridge[0], bridge, t_kf, t_kf[e], d, problem.cfg.user.sigma_h_m, spacing)
+    calib = calibration_of(model, scores, bridge[0], bridge, t_kf, t_kf[e], d, sigma_e, spacing)
     if model == "naive":
         return naive_solution(problem, *args, flags, calib)
     sol = solved[model]
@@ -131,7 +139,7 @@ def with_linearisation(sol: Solution) -> Solution:
 
 
 def held_out_residuals(problem, sol: Solution, index, edit_kf, edit_c_m, edit_has_alt, deleted_kf,
-                        picks: np.ndarray) -> np.ndarray:
+                        picks: np.ndarray, edit_sigma_m: np.ndarray | None = None) -> np.ndarray:
     """(n,2) horizontal error of the prediction of each picked edit by a local solve without it."""
     out = np.zeros((len(picks), 2))
     active_number = np.cumsum(sol.active) - 1
@@ -144,7 +152,8 @@ def held_out_residuals(problem, sol: Solution, index, edit_kf, edit_c_m, edit_ha
         # (an end edit's window runs free to the run's end: -1 and k hold nothing)
         span = (int(e_sorted[at - 1]) if at > 0 else -1, int(e_sorted[at + 1]) if at + 1 < len(e_sorted) else k_act)
         s = problem.solve_rows(index, edit_kf[keep], edit_c_m[keep], edit_has_alt[keep], deleted_kf,
-                            warm_start=sol, flags=sol.flags, local=True, span=span)
+                            warm_start=sol, flags=sol.flags, local=True, span=span,
+                            edit_sigma_m=None if edit_sigma_m is None else edit_sigma_m[keep])
         out[n] = s.keyframes.p_enu_m[edit_kf[j], :2] - edit_c_m[j, :2]
     return out
 

@@ -1,11 +1,14 @@
 """One edit, one edit set: operator moves by keyframe number, converted once at the edge.
 
 An ``Edit`` moves keyframe ``index`` (into the problem's default keyframes, fixed when a run
-is imported) to lon/lat (and altitude; None = a 2-D move that leaves the vertical free).  An
-``Edits`` set holds the moves (one per keyframe, in keyframe order), the deleted keyframes
-and the rule flags.  The web layer turns request bodies into ``Edit``s, the store's JSON
-``{"moves": [[k, lon, lat, alt_or_null], ...], "deleted": [k, ...], "flags": [...]}`` goes
-through ``Edits.from_json`` / ``to_json``, and the engine works on nothing else.  Edits read
+is imported) to lon/lat (and altitude; None = a 2-D move that leaves the vertical free),
+optionally with the horizontal 1-sigma per axis of that position (``sigma_m``: a crowd's
+fused position carries its uncertainty; None = the configured ``[user] sigma_h_m``, an
+operator's click).  An ``Edits`` set holds the moves (one per keyframe, in keyframe order),
+the deleted keyframes and the rule flags.  The web layer turns request bodies into
+``Edit``s, the store's JSON ``{"moves": [[k, lon, lat, alt_or_null(, sigma)], ...],
+"deleted": [k, ...], "flags": [...]}`` (sigma only when set) goes through
+``Edits.from_json`` / ``to_json``, and the engine works on nothing else.  Edits read
 from a file name samples by time (``posefix.io.edits``); ``Problem.solve`` matches them.
 """
 
@@ -21,15 +24,22 @@ from posefix.core.rules import EditRules, KeyframeMove, Refusal, RuleCheck, chec
 
 @dataclass(frozen=True)
 class Edit:
-    """Move keyframe ``index`` to (lon_deg, lat_deg[, alt_m]); ``alt_m`` None = a 2-D move."""
+    """Move keyframe ``index`` to (lon_deg, lat_deg[, alt_m]); ``alt_m`` None = a 2-D move;
+    ``sigma_m`` the position's horizontal 1-sigma per axis (None: the configured one)."""
 
     index: int
     lon_deg: float
     lat_deg: float
     alt_m: float | None = None
+    sigma_m: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.sigma_m is not None and not (np.isfinite(self.sigma_m) and self.sigma_m > 0):
+            raise ValueError(f"keyframe {self.index}: an edit's sigma must be a positive number of metres, not {self.sigma_m!r}")
 
     def to_json(self) -> list:
-        return [self.index, self.lon_deg, self.lat_deg, self.alt_m]
+        out = [self.index, self.lon_deg, self.lat_deg, self.alt_m]
+        return out if self.sigma_m is None else out + [self.sigma_m]
 
 
 @dataclass(frozen=True)
@@ -43,7 +53,8 @@ class Edits:
     @classmethod
     def from_json(cls, data: dict[str, Any] | None) -> "Edits":
         data = data or {}
-        moves = tuple(Edit(int(m[0]), float(m[1]), float(m[2]), None if m[3] is None else float(m[3]))
+        moves = tuple(Edit(int(m[0]), float(m[1]), float(m[2]), None if m[3] is None else float(m[3]),
+                           None if len(m) < 5 or m[4] is None else float(m[4]))
                       for m in data.get("moves", []))
         flags = tuple(Refusal(int(f["index"]), f["reason"], f["message"]) for f in data.get("flags", []))
         return cls(moves, tuple(int(d) for d in data.get("deleted", [])), flags)
@@ -61,6 +72,14 @@ class Edits:
     def has_alt(self) -> np.ndarray:
         """(m,) bool: the move carries an altitude (3-D)."""
         return np.array([m.alt_m is not None for m in self.moves], dtype=bool)
+
+    @property
+    def sigma_m(self) -> np.ndarray | None:
+        """(m,) horizontal 1-sigma per axis each move carries (NaN: none, the configured one);
+        None when no move carries one, so ordinary edits take the engine's usual path."""
+        if all(m.sigma_m is None for m in self.moves):
+            return None
+        return np.array([np.nan if m.sigma_m is None else m.sigma_m for m in self.moves], dtype=float)
 
     def merged(self, moves: list[Edit] | tuple[Edit, ...], deleted=(), flags=()) -> "Edits":
         """The cumulative set after a batch: a re-moved keyframe's newest move wins; a deleted

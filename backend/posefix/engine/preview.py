@@ -57,7 +57,7 @@ def local_drift(problem, edits: Edits, base: Solution) -> DriftEstimate | None:
     changed = new_kf if len(new_kf) else edit_kf
     new = problem.estimate_drift(index, edit_kf, targets_enu(problem, edits.moves), edits.has_alt,
                                  held=None if base.drift.loc_sigma_h_m is None or base.drift.tau_s <= 0
-                                 else DriftParams.of(base.drift))
+                                 else DriftParams.of(base.drift), edit_sigma_m=edits.sigma_m)
     w = taper(k, changed)
     b = base.drift
     return dataclasses.replace(

@@ -266,9 +266,10 @@ class Problem:
 
     def estimate_drift(self, act_rows: np.ndarray, edit_kf: np.ndarray, edit_c_m: np.ndarray,
                        edit_has_alt: np.ndarray, held: DriftParams | None = None,
-                       g_nan: np.ndarray | None = None) -> DriftEstimate:
+                       g_nan: np.ndarray | None = None, edit_sigma_m: np.ndarray | None = None) -> DriftEstimate:
         """The drift estimate (``drift.estimate_drift``) of edits at keyframes ``edit_kf`` (into
-        ``act_rows``) with ENU targets ``edit_c_m``; ``held`` keeps a previous solve's parameters."""
+        ``act_rows``) with ENU targets ``edit_c_m``; ``held`` keeps a previous solve's parameters;
+        ``edit_sigma_m`` (m,) the horizontal 1-sigma each edit carries (NaN: the configured one)."""
         cfg = self.cfg
         lc, uc = cfg.location, cfg.user
         t_act = self.run.t_s[act_rows]
@@ -277,11 +278,21 @@ class Problem:
             g_nan = self._location_measurements(act_rows)[2]
         return estimate_drift(
             t_act, p_rep, g_nan, np.asarray(edit_kf, dtype=np.int64), np.asarray(edit_c_m, dtype=float).reshape(-1, 3),
-            np.asarray(edit_has_alt, dtype=bool), lc.sigma_h_m, lc.sigma_v_m, uc.sigma_h_m, uc.sigma_v_m,
+            np.asarray(edit_has_alt, dtype=bool), lc.sigma_h_m, lc.sigma_v_m, self.edit_sigma_h(edit_sigma_m), uc.sigma_v_m,
             cfg.drift.bias_sigma_m, cfg.drift.bias_tau_s, cfg.drift.min_edits_for_estimate,
             held=held, steps=self._gnss_steps(act_rows, t_act, p_rep, g_nan),
             levels=lambda: self.gnss_levels(act_rows),
         )
+
+    def edit_sigma_h(self, edit_sigma_m: np.ndarray | None) -> float | np.ndarray:
+        """The horizontal 1-sigma per axis of each edit: the configured ``[user] sigma_h_m`` (a
+        float: every edit an operator's click), or (m,) where edits carry their own (NaN: the
+        configured one)."""
+        default = self.cfg.user.sigma_h_m
+        if edit_sigma_m is None:
+            return default
+        sig = np.asarray(edit_sigma_m, dtype=float).reshape(-1)
+        return np.where(np.isfinite(sig), sig, default)
 
     def solve_rows(
         self,
@@ -298,6 +309,7 @@ class Problem:
         calibration: Calibration | None = None,
         span: tuple[int, int] | None = None,
         newton: bool = False,
+        edit_sigma_m: np.ndarray | None = None,
     ) -> Solution:
         """Optimise keyframes ``index`` with edits given as keyframe numbers and ENU targets.
 
@@ -316,6 +328,9 @@ class Problem:
         millimetre of the optimum horizontally (steps measured east/north: the height is not
         what it is for).  The held-out scoring of another candidate model starts from it
         (``engine.choose``); the result keeps the warm start's linearisation.
+        ``edit_sigma_m`` (m,): the horizontal 1-sigma per axis each edit carries (NaN or None:
+        ``[user] sigma_h_m``); an edit is a soft constraint held to its sigma, in the user term,
+        the drift model and the edit bends alike.
         """
         cfg = self.cfg
         k = len(index)
@@ -338,6 +353,7 @@ class Problem:
             calib = warm_sol.drift.calibration
         if calib is not None and calib.model == "naive":
             return naive_solution(self, index, edit_kf, edit_c_m, edit_has_alt, deleted_kf, flags, calib)
+        sigma_u_h = self.edit_sigma_h(edit_sigma_m)
         g, has_fix, g_nan = self._location_measurements(act_rows)
         if not remove and np.any(deleted):
             has_fix = has_fix & ~deleted[active]  # a flagged (deleted) keyframe keeps no location term
@@ -360,7 +376,7 @@ class Problem:
             if len(drift.bias_sigma_m) != len(act_rows):
                 raise ValueError(f"drift is for {len(drift.bias_sigma_m)} keyframes, the solve has {len(act_rows)}")
         elif cfg.drift.enabled and len(e_act):
-            drift = self.estimate_drift(act_rows, e_act, edit_c_m, edit_has_alt, held, g_nan)
+            drift = self.estimate_drift(act_rows, e_act, edit_c_m, edit_has_alt, held, g_nan, edit_sigma_m)
         else:
             drift = no_drift(len(act_rows))
         if calib is not None:
@@ -372,7 +388,7 @@ class Problem:
             # the pose was most likely dragged, and the fixes that dragged it drop out (drift.edit_bends)
             evidence, transient = self._shape_evidence(act_rows, t_act, static, g_nan)
             extra_rel, dragged = edit_bends(p_rep, 1.0 / static.rel_w_t**2, evidence, e_act, edit_c_m,
-                                            uc.sigma_h_m, cfg.relative.edit_bend_chi2, g_nan, lc.sigma_h_m,
+                                            sigma_u_h, cfg.relative.edit_bend_chi2, g_nan, lc.sigma_h_m,
                                             transient=transient)
             if np.any(extra_rel > 0):
                 rel_w_t = 1.0 / np.sqrt(1.0 / static.rel_w_t**2 + extra_rel)
@@ -387,6 +403,8 @@ class Problem:
             loc_sigma[:] = np.inf
         loc_g = g[at] - drift.bias_enu_m[at]
         user_sigma = np.tile([uc.sigma_h_m, uc.sigma_h_m, uc.sigma_v_m], (len(e_act), 1))
+        if edit_sigma_m is not None:
+            user_sigma[:, :2] = sigma_u_h[:, None]
         user_sigma[~edit_has_alt, 2] = np.inf
         c = edit_c_m.copy()
         c[~edit_has_alt, 2] = p_rep[e_act[~edit_has_alt], 2]  # unused (zero weight), kept finite
@@ -551,9 +569,9 @@ class Problem:
         args = (self.keyframe_index, edits.index, targets_enu(self, edits.moves), edits.has_alt,
                 np.array(edits.deleted, dtype=np.int64), warm_start, list(edits.flags))
         if local or drift is not None:
-            sol = self.solve_rows(*args, local=local, drift=drift)
+            sol = self.solve_rows(*args, local=local, drift=drift, edit_sigma_m=edits.sigma_m)
         else:
-            sol = solve_calibrated(self, *args)
+            sol = solve_calibrated(self, *args, edit_sigma_m=edits.sigma_m)
         return self.checked_altitudes(sol, [m.alt_m for m in edits.moves])
 
     def checked_altitudes(self, sol: Solution, edit_alt_m) -> Solution:

@@ -78,7 +78,7 @@ def edit_bends(
     evidence: np.ndarray,
     edit_kf: np.ndarray,
     edit_c_m: np.ndarray,
-    sigma_u_m: float,
+    sigma_u_m: float | np.ndarray,
     chi2: float = 9.21,
     g_m: np.ndarray | None = None,
     sigma_w_m: float = 3.0,
@@ -91,7 +91,7 @@ def edit_bends(
     Between consecutive edits a < b the reported shape predicts the horizontal displacement
     ``p~_b - p~_a``, the edits say ``c_b - c_a``; their difference D has per axis the variance
     ``V = sum s_RT,i^2`` that the relative terms allow over the interval plus the edits'
-    ``2 sigma_u^2``.  Where ``|D|^2 > chi2 (V + 2 sigma_u^2)`` (9.21: the 99 % point of a
+    ``sigma_u,a^2 + sigma_u,b^2`` (``sigma_u_m``: one for all, or (m,) per edit).  Where ``|D|^2 > chi2 (V + 2 sigma_u^2)`` (9.21: the 99 % point of a
     chi-square with 2 degrees of freedom) the pose's error changed there more than its model
     admits.  When the location measurements ``g_m`` (k,3, NaN without a fix; None: the
     reported pose itself) show why - the edits' GNSS offsets (``edit_offsets``) at the two
@@ -126,20 +126,27 @@ def edit_bends(
     a, b = e[:-1], e[1:]
     ok = b > a
     a, b, ca, cb = a[ok], b[ok], c[:-1][ok], c[1:][ok]
+    if np.ndim(sigma_u_m):
+        s2 = np.asarray(sigma_u_m, dtype=float)[order] ** 2
+        u2 = s2[:-1][ok] + s2[1:][ok]  # the two ends' variances, per interval
+    else:
+        u2 = 2.0 * sigma_u_m**2
     cum_var = np.concatenate([[0.0], np.cumsum(rel_var_m2)])
     V = cum_var[b] - cum_var[a]
     D = (cb[:, :2] - ca[:, :2]) - (p_rep_m[b, :2] - p_rep_m[a, :2])
     d2 = np.einsum("ij,ij->i", D, D)
-    bent = d2 > chi2 * (V + 2.0 * sigma_u_m**2)
+    bent = d2 > chi2 * (V + u2)
     if not np.any(bent):
         return extra_rel, dragged
+    if np.ndim(u2):
+        u2 = u2[bent]
     a, b, ca, cb, d2, V = a[bent], b[bent], ca[bent], cb[bent], d2[bent], V[bent]
     g_m = p_rep_m if g_m is None else g_m
     off = edit_offsets(np.zeros(k), p_rep_m, g_m, np.concatenate([a, b]), np.concatenate([ca, cb]), window)[:, :2]
     n_win = min(2 * window + 1, k)
-    noise = sigma_u_m**2 + (MEDIAN_EFFICIENCY * sigma_w_m) ** 2 / n_win
+    noise2 = u2 + 2.0 * (MEDIAN_EFFICIENCY * sigma_w_m) ** 2 / n_win  # of the two ends' offsets together
     jump = off[len(a):] - off[:len(a)]
-    by_gnss = np.einsum("ij,ij->i", jump, jump) > chi2 * 2.0 * noise
+    by_gnss = np.einsum("ij,ij->i", jump, jump) > chi2 * noise2
     if transient is not None:
         big = np.asarray(transient, dtype=float) > TRANSIENT_CHI2
         cum_big = np.concatenate([[0], np.cumsum(big)])

@@ -35,7 +35,7 @@ def estimate_drift(
     edit_has_alt: np.ndarray,
     sigma_w_h_m: float,
     sigma_w_v_m: float,
-    sigma_u_h_m: float,
+    sigma_u_h_m: float | np.ndarray,
     sigma_u_v_m: float,
     prior_sigma_m: float,
     prior_tau_s: float,
@@ -49,7 +49,8 @@ def estimate_drift(
 
     kf_t_s (k,), p_rep_m (k,3) reported keyframe positions, g_m (k,3) location measurements
     (NaN where none), edit_kf (m,) keyframe of each edit, edit_c_m (m,3) edit targets
-    (vertical ignored where ``edit_has_alt`` is False).  ``held`` (``DriftParams``) holds the
+    (vertical ignored where ``edit_has_alt`` is False), ``sigma_u_h_m`` their horizontal
+    1-sigma (one for all, or (m,) per edit).  ``held`` (``DriftParams``) holds the
     model's parameters (a live drag re-uses those of the last solve so one more edit changes
     the bias only around it; its ``previous`` estimate keeps its GNSS levels).  ``steps``
     passes the result of ``gnss_steps`` when the caller keeps it between solves (it depends on
@@ -68,14 +69,20 @@ def estimate_drift(
     d = edit_offsets(kf_t_s, p_rep_m, g_m, edit_kf, edit_c_m, window)
     d[~edit_has_alt, 2] = np.nan
     n_win = min(2 * window + 1, k)
-    noise_h = np.full(len(t_e), sigma_u_h_m**2 + (MEDIAN_EFFICIENCY * sigma_w_h_m) ** 2 / n_win)
+    if np.ndim(sigma_u_h_m):  # each edit its own sigma: the tests that take one noise take the typical one
+        noise_h = np.asarray(sigma_u_h_m, dtype=float)[order] ** 2 + (MEDIAN_EFFICIENCY * sigma_w_h_m) ** 2 / n_win
+        noise0 = float(np.mean(noise_h))
+        sigma_u_h_m = float(np.sqrt(np.mean(np.asarray(sigma_u_h_m, dtype=float) ** 2)))
+    else:
+        noise_h = np.full(len(t_e), sigma_u_h_m**2 + (MEDIAN_EFFICIENCY * sigma_w_h_m) ** 2 / n_win)
+        noise0 = noise_h[0]
     noise_v = np.full(len(t_e), sigma_u_v_m**2 + (MEDIAN_EFFICIENCY * sigma_w_v_m) ** 2 / n_win)
     # persistent GNSS steps (urban-canyon offsets switching on and off) are taken out of the
     # offsets first; the Gauss-Markov model then describes what is left
     if steps is None:
         steps = gnss_steps((g_m - p_rep_m)[:, :2], window=step_window(kf_t_s))
     all_steps = steps
-    steps = steps_confirmed_by_edits(steps, edit_kf, d[:, :2], noise_h[0], k)
+    steps = steps_confirmed_by_edits(steps, edit_kf, d[:, :2], noise0, k)
     d[:, :2] -= steps.level_m[edit_kf]
     suspect = suspect_intervals(all_steps, steps, edit_kf, k)
     if held is not None:
@@ -107,9 +114,9 @@ def estimate_drift(
     # the offsets together beyond the 99 % point of the chi-square they would follow (a few
     # edits that agree on one offset: their median is a poor estimate, their sum is not).
     typical_dt = float(np.median(np.diff(t_e))) if len(t_e) > 1 else float(kf_t_s[-1] - kf_t_s[0])
-    median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise_h[0] / len(t_e))
+    median_sigma = MEDIAN_EFFICIENCY * np.sqrt(2.0 * noise0 / len(t_e))
     together = float(np.sum(np.sum(d[:, :2] ** 2, axis=1) / noise_h))
-    detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise_h[0]
+    detected = bool(np.hypot(offset[0], offset[1]) > 3.0 * median_sigma or q * typical_dt > 2.0 * noise0
                     or together > chi2_upper_quantile(2 * len(t_e), 0.01))
     if held is not None:
         detected = held.detected
