@@ -351,9 +351,12 @@ def _score(inst: Instance, seed: int, crowd: str, task_id: int, sims: dict[int, 
         tk = np.array([f["properties"]["t"] for f in feats])
         lon_t, lat_t = _truth_at(sims[tr["run_id"]], tk)
         inp = np.array([f["geometry"]["coordinates"][:2] for f in feats])
+        carried = ""
         if tr["merged_revision"] is not None:
             _wait(lambda: _get(inst.admin, f"/api/v1/runs/{tr['run_id']}").get("revision", 0) >= tr["merged_revision"], 120)
             merged = np.array([f["geometry"]["coordinates"][:2] for f in _keyframes(inst.admin, tr["run_id"], tr["merged_revision"])])
+            carried = _carried(_get(inst.admin, f"/api/v1/runs/{tr['run_id']}/revisions/{tr['merged_revision']}")["edit_set"],
+                               lon_t, lat_t)
         else:
             merged = inp
         subs = [s for s in view["submissions"] if s["positions"]]
@@ -374,8 +377,22 @@ def _score(inst: Instance, seed: int, crowd: str, task_id: int, sims: dict[int, 
                              adv_used, tr["status"],
                              " ".join(f"{n}:{e:.2f}/s{s['sigma_m']}/w{(detail.get('weights') or {}).get(str(s['assignment_id']), '-')}"
                                       f"{'!' if s['off_consensus'] else ''}{s['status'][0]}"
-                                      for n, e, s in zip(names, sub_err, subs)) + (f" [{detail['stopped']}]" if detail.get("stopped") else "")))
+                                      for n, e, s in zip(names, sub_err, subs)) + (f" [{detail['stopped']}]" if detail.get("stopped") else "")
+                             + carried))
     return out
+
+
+def _carried(edit_set: dict[str, Any], lon_t: np.ndarray, lat_t: np.ndarray) -> str:
+    """The merged moves' carried sigma (RMS, per axis) beside their actual error per axis
+    (RMS against the truth): whether the fused uncertainty the merge hands the engine is honest."""
+    mv = [m for m in edit_set.get("moves", []) if len(m) > 4 and m[4] is not None]
+    if not mv:
+        return ""
+    k = np.array([int(m[0]) for m in mv])
+    d = _en(np.array([m[1] for m in mv]), np.array([m[2] for m in mv]), float(lon_t[0]), float(lat_t[0])) \
+        - _en(lon_t[k], lat_t[k], float(lon_t[0]), float(lat_t[0]))
+    return (f" sigma carried {float(np.sqrt(np.mean([m[4] ** 2 for m in mv]))):.2f} m,"
+            f" fused error {float(np.sqrt(np.mean(d ** 2))):.2f} m per axis")
 
 
 def run_seed(seed: int, n_runs: int, duration_s: float) -> list[RunResult]:

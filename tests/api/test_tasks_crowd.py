@@ -191,3 +191,44 @@ def test_a_merge_whose_revision_fails_says_so_and_can_be_merged_again(env: Env) 
     assert env.client("admin").get(f"/api/v1/runs/{work}").json()["head_revision"] == 1
     twice = rv.post(f"/api/v1/task-runs/{trid}/merge")
     assert twice.status_code == 409 and twice.json()["error"] == "not_merge_failed"
+
+
+def test_a_merged_revision_carries_the_fused_uncertainty_of_each_move(env: Env) -> None:
+    import numpy as np
+
+    from posefix.tasks import repository as repo
+    from posefix.tasks.merge import edit_sigma_m
+    from posefix.tasks.models import AssignmentStatus, TaskRun
+    from posefix.tasks.weighing import weigh
+
+    work = env.import_run("drive-fused", seed=54)
+    task = env.client("admin").post("/api/v1/tasks", json=task_body([work], assignments_per_run=3)).json()
+    n = len(env.keyframes(work))
+    rng = np.random.default_rng(54)
+    for who, sigma in (("fine", 0.3), ("fair", 0.6), ("rough", 1.2)):
+        env.add_user(who, "operator")
+        a = _next(env, who)["assignment"]
+        moves = [truth_move(env, work, k, *rng.normal(0.0, sigma, 2)) for k in range(0, n, 3)]
+        assert env.client(who).post(f"/api/v1/assignments/{a['id']}/submit", json={"moves": moves}).status_code == 200
+    env.drain()
+    tr = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()["runs"][0]
+    view = env.client("reviewer").get(f"/api/v1/task-runs/{tr['id']}/review").json()
+    assert view["method"] == "weighted"
+    for s in view["submissions"]:
+        r = env.client("reviewer").post(f"/api/v1/assignments/{s['assignment_id']}/review", json={"decision": "approve"})
+        assert r.status_code == 200, r.text
+    env.drain()
+    tr = env.client("admin").get(f"/api/v1/tasks/{task['id']}").json()["runs"][0]
+    assert tr["status"] == "merged", tr
+    moves = env.client("admin").get(f"/api/v1/runs/{work}/revisions/{tr['merged_revision']}").json()["edit_set"]["moves"]
+    assert moves and all(len(m) == 5 and m[4] > 0 for m in moves)
+    # what it carries is the fusion's own: 1 / sqrt of the contributors' weights at each keyframe
+    with env.db.transaction() as s:
+        run = s.get(TaskRun, tr["id"])
+        subs = [a for a in repo.run_assignments(s, run.id) if a.status == AssignmentStatus.approved]
+        want = edit_sigma_m(weigh(s, run, subs, {a.id for a in subs}), [int(m[0]) for m in moves])
+    assert np.allclose([m[4] for m in moves], want, atol=1e-3)
+    # three operators fused: surer than the two weaker ones (0.6, 1.2 m) alone, and not merely the floor
+    assert 0.2 < float(np.median([m[4] for m in moves])) < 0.45
+    detail = env.client("reviewer").get(f"/api/v1/task-runs/{tr['id']}/review").json()["merge_detail"]
+    assert detail["edit_sigma_m"] == round(float(np.median([m[4] for m in moves])), 3)

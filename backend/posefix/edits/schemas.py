@@ -15,6 +15,9 @@ class MoveIn(BaseModel):
     lon: float = Field(ge=-180, le=180)
     lat: float = Field(ge=-90, le=90)
     alt: float | None = Field(default=None, ge=-1000, le=100000, description="metres; omit for a 2-D move")
+    sigma: float | None = Field(default=None, ge=0.05, le=1000, description=(
+        "horizontal 1-sigma per axis of the placed position, metres (a crowd's fused position carries its "
+        "uncertainty); the correction holds the keyframe that loosely. Omit for the engine's configured one"))
     kind: Literal["move", "suggestion"] = Field(default="move", description="suggestion: accepted from map matching (stored as such)")
 
 

@@ -67,7 +67,7 @@ def revision_base(session: Session, settings: Settings, run: Run, revision: int)
 
 
 def _moves(moves: list[MoveIn]) -> list[Edit]:
-    return [Edit(m.index, m.lon, m.lat, m.alt) for m in moves]
+    return [Edit(m.index, m.lon, m.lat, m.alt, m.sigma) for m in moves]
 
 
 def preview(session: Session, settings: Settings, run: Run, base_revision: int, moves: list[MoveIn], deleted: list[int]) -> dict[str, Any]:

@@ -90,12 +90,28 @@ def merged_edits(session: Session, tr: TaskRun, subs: list[Assignment], contribu
     moves: list[MoveIn] = []
     if keep:
         lon, lat = to_lonlat(wg.fused.t_m[keep], wg.origin)
-        moves = [MoveIn(index=k, lon=float(lo), lat=float(la)) for k, lo, la in zip(keep, lon, lat)]
+        sig = edit_sigma_m(wg, keep)
+        moves = [MoveIn(index=k, lon=float(lo), lat=float(la), sigma=None if s is None else round(s, 3))
+                 for k, lo, la, s in zip(keep, lon, lat, sig)]
     share = wg.weight_share
     weights = {str(aid): round(float(w), 4) for aid, w in zip(wg.ids, share) if aid in ids}
     sig = wg.fused.sigma_m[keep] if keep else np.array([])
+    carried = [m.sigma for m in moves if m.sigma is not None]
     return moves, deleted, {"from": sorted(ids), "outweighed": sorted(outweighed), "method": wg.method, "weights": weights,
-                            "sigma_m": None if not len(sig) or np.all(np.isnan(sig)) else round(float(np.nanmedian(sig)), 3)}, wg
+                            "sigma_m": None if not len(sig) or np.all(np.isnan(sig)) else round(float(np.nanmedian(sig)), 3),
+                            "edit_sigma_m": round(float(np.median(carried)), 3) if carried else None}, wg
+
+
+def edit_sigma_m(wg: Weighing, k: list[int]) -> list[float | None]:
+    """The horizontal 1-sigma each merged move carries into the correction (``Edit.sigma_m``):
+    the fused position's own scatter, 1 / sqrt(W_k) of the contributors' weights, not the
+    level's uncertainty (an offset shared by every fused keyframe, which holding the edits
+    more loosely cannot average away) nor the t-distribution's allowance. None (the engine's
+    configured sigma) where the fusion weighed nobody (the geometric median: nothing known)."""
+    if wg.method != "weighted":
+        return [None] * len(k)
+    wsum = wg.fused.w[:, k].sum(axis=0)
+    return [float(max(1.0 / np.sqrt(w), SIGMA_FLOOR_M)) if w > 0 else None for w in wsum]
 
 
 def merge_safe(session: Session, tr: TaskRun, moves: list[MoveIn], wg: Weighing) -> str | None:
@@ -193,7 +209,7 @@ def drop_refused(session: Session, settings: Settings, run: Run, moves: list[Mov
     problem = edits_service.load_problem(session, settings, run)
     dropped: list[dict[str, Any]] = []
     for _ in range(passes):
-        batch = [Edit(m.index, m.lon, m.lat, m.alt) for m in moves]
+        batch = [Edit(m.index, m.lon, m.lat, m.alt, m.sigma) for m in moves]
         refusals = check_batch(problem, problem.cfg.rules, Edits.from_json(base), batch, deleted).refusals
         if not refusals:
             return moves, deleted, dropped

@@ -1811,6 +1811,11 @@ export interface components {
             lat: number;
             /** Lon */
             lon: number;
+            /**
+             * Sigma
+             * @description horizontal 1-sigma per axis of the placed position, metres (a crowd's fused position carries its uncertainty); the correction holds the keyframe that loosely. Omit for the engine's configured one
+             */
+            sigma?: number | null;
         };
         /** NextResponse */
         NextResponse: {
