@@ -169,7 +169,7 @@ def held_out_fixed_terms(sol: Solution, edit_kf: np.ndarray, picks: np.ndarray) 
     at its own answer, or a window's steps do not settle (then refit each edit).
     """
     from posefix.core.solver import BAND_U, _model_from_linearisation, _newton_on_model
-    from posefix.engine.window import LOCAL_EDGE_M, LOCAL_MARGIN
+    from posefix.engine.window import LOCAL_EDGE_M, LOCAL_MARGIN, edge_motion, held_window
 
     terms, lin = sol.terms, sol.linearisation
     if terms is None or lin is None or not lin.matches(terms) or not np.array_equal(lin.x_lin, sol.x):
@@ -193,15 +193,12 @@ def held_out_fixed_terms(sol: Solution, edit_kf: np.ndarray, picks: np.ndarray) 
         while True:
             a = max(min(max(kj - margin, 0), span[0] + 1), 0)
             b = min(max(min(kj + margin, k - 1), span[1] - 1), k - 1)
-            lo, hi = max(a - 1, 0), min(b + 1, k - 1)
+            lo, hi, fixed = held_window(a, b, k)
             if (lo, hi) == last:  # widened past what the neighbouring edits already bound: the same window
                 margin *= 3
                 continue
             last = (lo, hi)
             sub = T.window_terms(terms, lo, hi)
-            fixed = np.zeros(hi - lo + 1, dtype=bool)
-            fixed[0] = lo < a
-            fixed[-1] = hi > b
             ab_w = np.array(ab[:, 6 * lo:6 * hi + 6], order="F", copy=True)
             g_w = g[6 * lo:6 * hi + 6].copy()
             col = 6 * (kj - lo) + np.arange(3)
@@ -211,9 +208,7 @@ def held_out_fixed_terms(sol: Solution, edit_kf: np.ndarray, picks: np.ndarray) 
             x_sub, _ = _newton_on_model(sub, ab_w, g_w, x_lin[6 * lo:6 * hi + 6], x0, fixed, 8, 0.02)
             if x_sub is None or float(np.max(np.abs((x_sub - x0).reshape(-1, 6)[:, 3:]), initial=0.0)) >= 1e-3:
                 return None
-            moved = np.abs(x_sub.reshape(-1, 6)[:, :3] - xs[lo:hi + 1, :3]).max(axis=1)
-            edge = max(moved[1] if fixed[0] else 0.0, moved[-2] if fixed[-1] else 0.0)
-            if edge <= LOCAL_EDGE_M:
+            if edge_motion(x_sub, xs[lo:hi + 1], fixed) <= LOCAL_EDGE_M:
                 break
             margin *= 3
         out[n] = x_sub[6 * (kj - lo):6 * (kj - lo) + 2] - c[:2]

@@ -58,15 +58,12 @@ def solve_window(terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: Solve
             a, b = max(min(a, span[0] + 1), 0), min(max(b, span[1] - 1), k - 1)
         if b - a + 1 > 0.5 * k and span is None:
             return None, None
-        lo, hi = max(a - 1, 0), min(b + 1, k - 1)
+        lo, hi, fixed = held_window(a, b, k)
         if (lo, hi) == last:  # widened within what ``span`` already bound: the same window, the same answer
             margin *= 3
             continue
         last = (lo, hi)
         sub = T.window_terms(terms, lo, hi)
-        fixed = np.zeros(hi - lo + 1, dtype=bool)
-        fixed[0] = lo < a
-        fixed[-1] = hi > b
         x_sub0 = xs[lo:hi + 1].ravel()
         lin_w, before, at_lin = None, None, False
         if lin is not None:
@@ -83,9 +80,7 @@ def solve_window(terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: Solve
         x_sub, res = out
         # the held keyframes stand in for the rest of the run; if the keyframes beside them
         # still moved by more than LOCAL_EDGE_M, the change reaches further: widen and redo
-        moved = np.abs(x_sub.reshape(-1, 6)[:, :3] - x_sub0.reshape(-1, 6)[:, :3]).max(axis=1)
-        edge = max(moved[1] if fixed[0] else 0.0, moved[-2] if fixed[-1] else 0.0)
-        if edge <= LOCAL_EDGE_M:
+        if edge_motion(x_sub, x_sub0, fixed) <= LOCAL_EDGE_M:
             break
         margin *= 3
     x = xs.copy()
@@ -102,6 +97,22 @@ def solve_window(terms: T.Terms, old: T.Terms, x0: np.ndarray, old_result: Solve
                           after, time.perf_counter() - started, res.method + "-window",
                           extra={**res.extra, "window": (a, b), "window_held": (lo, hi)})
     return x.ravel(), result
+
+
+def held_window(a: int, b: int, k: int) -> tuple[int, int, np.ndarray]:
+    """Keyframes a..b with a held keyframe on each side (none past the run's ends): lo, hi and
+    which of lo..hi are held."""
+    lo, hi = max(a - 1, 0), min(b + 1, k - 1)
+    fixed = np.zeros(hi - lo + 1, dtype=bool)
+    fixed[0] = lo < a
+    fixed[-1] = hi > b
+    return lo, hi, fixed
+
+
+def edge_motion(x_sub: np.ndarray, x_ref: np.ndarray, fixed: np.ndarray) -> float:
+    """How far the keyframes next to the held ones moved from ``x_ref`` (metres, largest axis)."""
+    moved = np.abs(x_sub.reshape(-1, 6)[:, :3] - x_ref.reshape(-1, 6)[:, :3]).max(axis=1)
+    return max(moved[1] if fixed[0] else 0.0, moved[-2] if fixed[-1] else 0.0)
 
 
 def _window_costs_before(old_sub: T.Terms, new_sub: T.Terms, x_sub0: np.ndarray,
